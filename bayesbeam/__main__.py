@@ -1,0 +1,5 @@
+"""Allow ``python -m bayesbeam``."""
+
+from bayesbeam.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,456 @@
+"""Forward model: physical parameters → signal at the sensor, batched over parameter sets.
+
+Data flow (physics.md §1, §4): beam description → FE matrices (:mod:`bayesbeam.fem`) and
+spatial-hysteresis operator (:mod:`bayesbeam.hysteresis`) → undamped modal basis
+(Φ M-orthonormal, Φᵀ K Φ = Ω²) → modal damping C = Φᵀ D Φ → exact response of
+z' = A z, z = [Ω q; q'] (:mod:`bayesbeam.propagate`) → sensor output.
+
+The modal form keeps the state matrix well conditioned even with Kelvin–Voigt damping
+(physics.md §4, "Conditioning"). No modes are dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from bayesbeam import propagate
+from bayesbeam.beam import Beam
+from bayesbeam.fem import FEModel, assemble
+from bayesbeam.hysteresis import HysteresisOperator
+from bayesbeam.models import Model, parse_model
+
+__all__ = ["Forward", "ForwardError", "Response", "modal_properties"]
+
+# Admissible ranges of the physical parameters (SI); outside them a set is invalid.
+_LOWER = {
+    "E": (0.0, False),
+    "gamma": (0.0, True),
+    "c_d": (0.0, True),
+    "a": (0.0, True),
+    "b": (0.0, False),
+    "tip_mass": (0.0, True),
+    "root_spring": (0.0, False),
+    "stiffness_gradient": (-2.0, False),
+    "w0": (-np.inf, False),
+    "p0": (-np.inf, False),
+}
+_UPPER = {"stiffness_gradient": 2.0}
+
+
+class ForwardError(ValueError):
+    """The forward model was set up or called with invalid input."""
+
+
+@dataclass(frozen=True)
+class Response:
+    """Batched sensor signal.
+
+    Attributes
+    ----------
+    y : ndarray, shape (B, T)
+        Signal in SI units of the sensor's quantity (m, m/s or m/s^2); rows of
+        invalid sets are zero.
+    valid : ndarray of bool, shape (B,)
+        False where the parameter set is outside its admissible range or the
+        solution was not finite.
+    """
+
+    y: np.ndarray
+    valid: np.ndarray
+
+
+def _initial_names(initial: str) -> tuple[str, ...]:
+    if initial == "release":
+        return ("w0",)
+    if initial == "impulse":
+        return ("p0",)
+    if initial.startswith("modes:"):
+        try:
+            k = int(initial.split(":", 1)[1])
+        except ValueError:
+            k = 0
+        if k < 1:
+            raise ForwardError(f"initial={initial!r}: use 'modes:K' with K a positive integer")
+        return tuple(n for i in range(1, k + 1) for n in (f"A{i}", f"B{i}"))
+    if initial == "state":
+        return ()
+    raise ForwardError(
+        f"unknown initial condition {initial!r}; use 'release' (tip deflection w0, m), "
+        "'impulse' (tip impulse p0, N s), 'modes:K' (first K modal amplitudes at the sensor, m) "
+        "or 'state' (a fixed initial_state=(c0, v0))"
+    )
+
+
+class Forward:
+    """Batched forward model of one trial: parameter sets → sensor signal.
+
+    Parameters
+    ----------
+    beam : Beam
+        Beam description, including sensor position and measured quantity.
+    model : str or Model
+        Damping laws and structural extensions, e.g. ``'viscous+sh'``.
+    times : array_like, shape (T,)
+        Sample times in s, strictly increasing; the initial condition holds at
+        ``times[0]``. Uniform spacing (to 1e-9 relative) takes the fast propagator.
+    n_elements : int
+        Number of Hermite elements.
+    initial : str
+        'release' (static tip load released; parameter ``w0`` = tip deflection in m),
+        'impulse' (tip impulse ``p0`` in N s from rest), 'modes:K' (displacement
+        ``A_k`` and velocity/ω ``B_k`` of the first K modes at the sensor, m) or 'state'.
+    initial_state : tuple of ndarray, optional
+        ``(c0, v0)`` dof vectors (shape (n,)) for ``initial='state'``.
+    t0 : float, optional
+        Instant (s) at which the initial condition holds, ``t0 <= times[0]``; default
+        ``times[0]`` (a decimated trial keeps its release instant in ``Trial.t0``).
+    """
+
+    def __init__(
+        self,
+        beam: Beam,
+        model: str | Model,
+        times: np.ndarray,
+        *,
+        n_elements: int = 16,
+        initial: str = "release",
+        initial_state: tuple[np.ndarray, np.ndarray] | None = None,
+        t0: float | None = None,
+    ) -> None:
+        if not isinstance(beam, Beam):
+            raise ForwardError("beam must be a bayesbeam.Beam")
+        self.beam = beam
+        self.model = parse_model(model)
+        if self.model.nonlinear:
+            raise ForwardError(
+                f"model {self.model.name!r} is nonlinear; use bayesbeam.nonlinear for "
+                "amplitude-dependent damping"
+            )
+        t = np.asarray(times, dtype=float)
+        if t.ndim != 1 or t.size < 2 or not np.all(np.isfinite(t)):
+            raise ForwardError("times must be a 1-D array of at least 2 finite values in s")
+        steps = np.diff(t)
+        if np.any(steps <= 0):
+            raise ForwardError("times must be strictly increasing (sort the samples, drop repeats)")
+        self.times = t
+        t0 = float(t[0]) if t0 is None else float(t0)
+        if not np.isfinite(t0) or t0 > t[0]:
+            raise ForwardError(f"t0 ({t0} s) must be finite and not after the first sample")
+        self.t0 = t0
+        self._lead = float(t[0] - t0)
+        self._t = t - t[0]
+        self._dt = float(np.mean(steps))
+        self.uniform = bool(np.max(np.abs(steps - self._dt)) <= 1e-9 * self._dt)
+        self.initial = initial
+        self._init_names = _initial_names(initial)
+        root_dof = beam.root_spring is not None or "root_spring" in self.model.structural
+        self.fe: FEModel = assemble(beam, n_elements, root_dof=root_dof)
+        n = self.fe.M.shape[0]
+        if initial == "state":
+            if initial_state is None:
+                raise ForwardError("initial='state' needs initial_state=(c0, v0)")
+            c0, v0 = (np.asarray(v, dtype=float) for v in initial_state)
+            if c0.shape != (n,) or v0.shape != (n,):
+                raise ForwardError(f"initial_state vectors must have shape ({n},)")
+            self._state = (c0, v0)
+        self.sh = HysteresisOperator(self.fe.nodes, root_dof) if "sh" in self.model.laws else None
+        self.sensor = self.fe.shape(np.array([beam.sensor_x]))[0]
+        self.quantity = beam.quantity
+        self.param_names: tuple[str, ...] = self.model.physical_params + self._init_names
+        # Fast path: only E changes K, so the modal basis is fixed and ω ∝ sqrt(E).
+        self._fixed = not self.model.structural and beam.root_spring is None
+        if self._fixed:
+            w2, phi = sla.eigh(self.fe.K, self.fe.M)
+            self._w_unit = np.sqrt(np.maximum(w2, 0.0))
+            self._phi = phi
+            self._G = phi.T @ self.fe.G @ phi
+            self._KV = phi.T @ self.fe.KV @ phi
+            shape = np.linalg.solve(self.fe.K, self.fe.tip)
+            self._release = shape / (self.fe.tip @ shape)
+
+    # -- helpers --------------------------------------------------------------------
+    def _columns(self, theta: np.ndarray | dict) -> np.ndarray:
+        if isinstance(theta, dict):
+            missing = [p for p in self.param_names if p not in theta]
+            if missing:
+                raise ForwardError(f"missing parameters {missing}; need {list(self.param_names)}")
+            cols = [np.atleast_1d(np.asarray(theta[p], dtype=float)) for p in self.param_names]
+            theta = np.column_stack(np.broadcast_arrays(*cols))
+        theta = np.asarray(theta, dtype=float)
+        if theta.ndim == 1:
+            theta = theta[None, :]
+        if theta.ndim != 2 or theta.shape[1] != len(self.param_names):
+            raise ForwardError(
+                f"theta must have shape (B, {len(self.param_names)}) with columns "
+                f"{list(self.param_names)}, got {theta.shape}"
+            )
+        return theta
+
+    def check(self, theta: np.ndarray) -> np.ndarray:
+        """Return the mask of admissible parameter sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P)
+
+        Returns
+        -------
+        ndarray of bool, shape (B,)
+        """
+        theta = self._columns(theta)
+        ok = np.all(np.isfinite(theta), axis=1)
+        for j, name in enumerate(self.param_names):
+            lo, closed = _LOWER.get(name, (-np.inf, False))
+            ok &= theta[:, j] >= lo if closed else theta[:, j] > lo
+            if name in _UPPER:
+                ok &= theta[:, j] < _UPPER[name]
+        return ok
+
+    def _get(self, theta: np.ndarray, name: str, default: float = 0.0) -> np.ndarray:
+        if name in self.param_names:
+            return theta[:, self.param_names.index(name)]
+        return np.full(theta.shape[0], default)
+
+    def modal_system(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Modal frequencies, damping matrices and mode shapes for valid sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P)
+            Admissible parameter sets (see :meth:`check`).
+
+        Returns
+        -------
+        omega : ndarray, shape (B, m)
+            Undamped natural frequencies in rad/s.
+        C : ndarray, shape (B, m, m)
+            Modal damping matrices Φᵀ D Φ in 1/s.
+        phi : ndarray, shape (B, n, m) or (n, m)
+            M-orthonormal mode shapes (shared when the structure is fixed).
+        """
+        theta = self._columns(theta)
+        B = theta.shape[0]
+        E = self._get(theta, "E")
+        if self._fixed:
+            phi = self._phi
+            omega = np.sqrt(E)[:, None] * self._w_unit[None, :]
+            C = np.zeros((B,) + self._G.shape)
+            if "viscous" in self.model.laws:
+                C += self._get(theta, "gamma")[:, None, None] * self._G
+            if "kv" in self.model.laws:
+                C += self._get(theta, "c_d")[:, None, None] * self._KV
+            if self.sh is not None:
+                a = self._get(theta, "a")
+                C += a[:, None, None] * self.sh.projected(self._get(theta, "b"), phi)
+            return omega, C, phi
+        fe = self.fe
+        mt = self._get(theta, "tip_mass")
+        kr = self._get(theta, "root_spring", self.beam.root_spring or 0.0)
+        g = self._get(theta, "stiffness_gradient")
+        M = fe.M[None] + mt[:, None, None] * fe.M_tip[None]
+        K = E[:, None, None] * (fe.K[None] + g[:, None, None] * fe.K_grad[None])
+        K = K + kr[:, None, None] * fe.K_root[None]
+        # Generalised symmetric eigenproblem via Cholesky of M: K̃ = L⁻¹ K L⁻ᵀ.
+        Lc = np.linalg.cholesky(M)
+        Li = np.linalg.inv(Lc)
+        Kt = Li @ K @ np.swapaxes(Li, 1, 2)
+        w2, V = np.linalg.eigh(0.5 * (Kt + np.swapaxes(Kt, 1, 2)))
+        phi = np.swapaxes(Li, 1, 2) @ V
+        omega = np.sqrt(np.maximum(w2, 0.0))
+        pt = np.swapaxes(phi, 1, 2)
+        C = np.zeros((B, phi.shape[2], phi.shape[2]))
+        if "viscous" in self.model.laws:
+            C += self._get(theta, "gamma")[:, None, None] * (pt @ fe.G @ phi)
+        if "kv" in self.model.laws:
+            C += self._get(theta, "c_d")[:, None, None] * (pt @ fe.KV @ phi)
+        if self.sh is not None:
+            a, b = self._get(theta, "a"), self._get(theta, "b")
+            S = np.stack([self.sh.matrix(bk) for bk in b])
+            C += a[:, None, None] * (pt @ S @ phi)
+        self._last_K = K
+        return omega, C, phi
+
+    def _initial_state(
+        self, theta: np.ndarray, omega: np.ndarray, phi: np.ndarray
+    ) -> np.ndarray | None:
+        """Initial modal state z0 = [Ω q0; q0'], shape (B, 2m); None rows flagged later."""
+        fe = self.fe
+        B, m = omega.shape
+        phi_b = np.broadcast_to(phi, (B,) + phi.shape[-2:])
+        pt = np.swapaxes(phi_b, 1, 2)
+        q0 = np.zeros((B, m))
+        v0 = np.zeros((B, m))
+        if self.initial == "release":
+            if self._fixed:
+                shape = np.broadcast_to(self._release, (B, self._release.size))
+            else:
+                shape = np.linalg.solve(self._last_K, np.broadcast_to(fe.tip, (B, fe.tip.size)))
+                shape = shape / (shape @ fe.tip)[:, None]
+            c0 = self._get(theta, "w0")[:, None] * shape
+            q0 = np.einsum("bmn,nk,bk->bm", pt, fe.M, c0) if self._fixed else None
+            if q0 is None:
+                mt = self._get(theta, "tip_mass")
+                Mc = c0 @ fe.M + mt[:, None] * (c0 @ fe.M_tip)
+                q0 = np.einsum("bmn,bn->bm", pt, Mc)
+        elif self.initial == "impulse":
+            v0 = self._get(theta, "p0")[:, None] * np.einsum("bmn,n->bm", pt, fe.tip)
+        elif self.initial == "state":
+            c0, vv = self._state
+            if self._fixed:
+                q0 = np.broadcast_to(self._phi.T @ fe.M @ c0, (B, m)).copy()
+                v0 = np.broadcast_to(self._phi.T @ fe.M @ vv, (B, m)).copy()
+            else:
+                mt = self._get(theta, "tip_mass")
+                Mc = (fe.M @ c0)[None] + mt[:, None] * (fe.M_tip @ c0)[None]
+                Mv = (fe.M @ vv)[None] + mt[:, None] * (fe.M_tip @ vv)[None]
+                q0 = np.einsum("bmn,bn->bm", pt, Mc)
+                v0 = np.einsum("bmn,bn->bm", pt, Mv)
+        else:  # modes:K — amplitudes at the sensor
+            s = np.einsum("n,bnm->bm", self.sensor, phi_b)
+            k = len(self._init_names) // 2
+            for i in range(k):
+                A = self._get(theta, f"A{i + 1}")
+                Bv = self._get(theta, f"B{i + 1}")
+                q0[:, i] = A / s[:, i]
+                v0[:, i] = Bv * omega[:, i] / s[:, i]
+        return np.concatenate([omega * q0, v0], axis=1)
+
+    def _output(self, omega: np.ndarray, C: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """Output vectors h with y = h·z, shape (B, 2m)."""
+        B, m = omega.shape
+        s = np.einsum("n,...nm->...m", self.sensor, phi)
+        s = np.broadcast_to(s, (B, m))
+        if self.quantity == "displacement":
+            return np.concatenate([s / omega, np.zeros((B, m))], axis=1)
+        if self.quantity == "velocity":
+            return np.concatenate([np.zeros((B, m)), s], axis=1)
+        # q'' = -Ω (Ω q) - C q'
+        return np.concatenate([-s * omega, -np.einsum("bm,bmk->bk", s, C)], axis=1)
+
+    # -- public ------------------------------------------------------------------
+    def state_space(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First-order modal system of admissible parameter sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P)
+            Admissible sets (see :meth:`check`).
+
+        Returns
+        -------
+        A : ndarray, shape (B, 2m, 2m)
+            State matrix of z' = A z, z = [Ω q; q'].
+        z0 : ndarray, shape (B, 2m)
+            Initial state at ``times[0]``.
+        h : ndarray, shape (B, 2m)
+            Output row: the sensor signal is y = h·z (SI units of the quantity).
+        """
+        theta = self._columns(theta)
+        omega, C, phi = self.modal_system(theta)
+        z0 = self._initial_state(theta, omega, phi)
+        h = self._output(omega, C, phi)
+        return propagate.state_matrix(omega, C), z0, h
+
+    def simulate(self, theta: np.ndarray | dict) -> Response:
+        """Sensor signal for a batch of parameter sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P), or dict of name → array
+            Parameter sets with columns :attr:`param_names` (SI units).
+
+        Returns
+        -------
+        Response
+            ``y`` of shape (B, T) and the ``valid`` mask; invalid sets are never NaN,
+            they are flagged.
+        """
+        theta = self._columns(theta)
+        B = theta.shape[0]
+        y = np.zeros((B, self._t.size))
+        valid = self.check(theta)
+        if not np.any(valid):
+            return Response(y, valid)
+        th = theta[valid]
+        with np.errstate(all="ignore"):
+            A, z0, h = self.state_space(th)
+            if self._lead > 0:
+                # The state at the first sample: exact propagation over the lead time.
+                z0 = np.einsum("bij,bj->bi", propagate.expm_batched(A * self._lead), z0)
+            ok = (
+                np.all(np.isfinite(A), axis=(1, 2))
+                & np.all(np.isfinite(z0), axis=1)
+                & np.all(np.isfinite(h), axis=1)
+            )
+            yy = np.zeros((th.shape[0], self._t.size))
+            if np.any(ok):
+                if self.uniform:
+                    yy[ok] = propagate.response_uniform(A[ok], z0[ok], h[ok], self._dt, self._t.size)
+                else:
+                    yy[ok] = propagate.response_times(A[ok], z0[ok], h[ok], self._t)
+        ok &= np.all(np.isfinite(yy), axis=1)
+        yy[~ok] = 0.0
+        idx = np.flatnonzero(valid)
+        valid[idx[~ok]] = False
+        y[idx[ok]] = yy[ok]
+        return Response(y, valid)
+
+    def modes(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
+        """Natural frequencies and damping ratios of the underdamped modes of one set.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (P,) or dict
+
+        Returns
+        -------
+        frequencies_hz : ndarray, shape (k,)
+            |λ|/2π of each underdamped eigenvalue λ (Im λ > 0), sorted by |λ|.
+        damping_ratios : ndarray, shape (k,)
+            −Re λ / |λ|.
+        """
+        theta = self._columns(theta)[:1]
+        if not self.check(theta)[0]:
+            raise ForwardError(f"parameters outside their admissible range: {theta[0]}")
+        omega, C, _ = self.modal_system(theta)
+        lam = propagate.eigenvalues(propagate.state_matrix(omega, C))[0]
+        lam = lam[lam.imag > 1e-9 * np.abs(lam)]
+        order = np.argsort(np.abs(lam))
+        lam = lam[order]
+        return np.abs(lam) / (2 * np.pi), -lam.real / np.abs(lam)
+
+
+def modal_properties(
+    beam: Beam, model: str | Model, params: dict[str, float], *, n_elements: int = 16
+) -> tuple[np.ndarray, np.ndarray]:
+    """Natural frequencies (Hz) and modal damping ratios of a damped beam.
+
+    Parameters
+    ----------
+    beam : Beam
+    model : str or Model
+    params : dict
+        Physical parameters of the model (SI); E defaults to ``beam.E``.
+    n_elements : int
+
+    Returns
+    -------
+    frequencies_hz, damping_ratios : ndarray, shape (k,)
+        See :meth:`Forward.modes`.
+    """
+    fwd = Forward(beam, model, np.array([0.0, 1.0]), n_elements=n_elements)
+    p = {"w0": 0.0, **params}
+    if "E" not in p:
+        if beam.E is None:
+            raise ForwardError("give E (Pa): the beam description has no nominal E")
+        p["E"] = beam.E
+    missing = [n for n in fwd.model.physical_params if n not in p]
+    if missing:
+        raise ForwardError(
+            f"model {fwd.model.name!r} needs parameters {missing} (SI units); "
+            "give them, e.g. --set gamma=0.01"
+        )
+    return fwd.modes(p)
