@@ -26,6 +26,7 @@ for most posteriors and it is off by several nats on the test problems.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -36,6 +37,7 @@ from scipy.special import gammaln, logsumexp
 __all__ = [
     "Evidence",
     "EvidenceError",
+    "EvidenceWarning",
     "HessianNotNegativeDefiniteError",
     "bridge_sampling",
     "effective_sample_size",
@@ -48,6 +50,10 @@ _PROPOSALS = ("normal", "t", "warp3")
 
 class EvidenceError(ValueError):
     """Inputs to an evidence estimator are invalid; the message says how to fix them."""
+
+
+class EvidenceWarning(UserWarning):
+    """An evidence estimate was returned but may be unreliable (e.g. not converged)."""
 
 
 class HessianNotNegativeDefiniteError(EvidenceError):
@@ -170,7 +176,9 @@ def effective_sample_size(x: np.ndarray) -> float:
     if x.ndim != 2:
         raise EvidenceError(f"ESS input must be (n_steps, n_walkers), got shape {x.shape}")
     if x.shape[0] < 8:
-        raise EvidenceError(f"need at least 8 steps per walker to estimate an ESS, got {x.shape[0]}")
+        raise EvidenceError(
+            f"need at least 8 steps per walker to estimate an ESS, got {x.shape[0]}"
+        )
     if not np.all(np.isfinite(x)):
         raise EvidenceError("ESS input contains non-finite values")
     if np.max(x) - np.min(x) < np.finfo(float).resolution:
@@ -216,9 +224,9 @@ def _as_chain(samples: Any) -> np.ndarray:
             "samples must have shape (n_steps, n_walkers, ndim) (emcee get_chain()) or "
             f"(n, ndim); got shape {s.shape}"
         )
-    if s.shape[0] < 8:
+    if s.shape[0] < 16:
         raise EvidenceError(
-            f"need at least 8 steps per walker for bridge sampling, got {s.shape[0]}; "
+            f"need at least 16 steps per walker for bridge sampling, got {s.shape[0]}; "
             "run the sampler longer"
         )
     if not np.all(np.isfinite(s)):
@@ -399,6 +407,20 @@ def bridge_sampling(
     EvidenceError
         On malformed inputs, a singular sample covariance, NaN from ``log_prob`` or
         a proposal that misses the posterior entirely.
+
+    Warns
+    -----
+    EvidenceWarning
+        If the fixed-point iteration did not reach ``tol``.
+
+    Notes
+    -----
+    The error is the Monte Carlo error *given* a chain that samples the posterior;
+    it cannot see an unconverged chain or a missed mode. On the test problems
+    (~48 000 log-density calls: 32 walkers x 1100 steps, 300 discarded, plus the
+    proposal draws) it is 0.001-0.003 nats for 2-6-D Gaussians and 0.02-0.03 nats
+    for 2-4-D bananas in a box, and calibrated (about 95 % of estimates within 2
+    errors); remnants of burn-in bias the estimate by up to ~0.5 error.
     """
     if proposal not in _PROPOSALS:
         raise EvidenceError(f"proposal must be one of {_PROPOSALS}, got {proposal!r}")
@@ -472,6 +494,13 @@ def bridge_sampling(
     s1 = n1_eff / (n1_eff + n2)
     s2 = 1.0 - s1
     log_z, iterations, converged = _iterate(l1, l2, s1, s2, tol, max_iter)
+    if not converged:
+        warnings.warn(
+            f"bridge sampling did not converge to tol={tol} in {max_iter} iterations; the "
+            "estimate may be inaccurate (raise max_iter, or check the proposal overlap)",
+            EvidenceWarning,
+            stacklevel=2,
+        )
 
     # Frühwirth-Schnatter (2004) relative MSE, evaluated in log space.
     ls1, ls2 = math.log(s1), math.log(s2)
@@ -561,8 +590,13 @@ def laplace_evidence(
         Hessian of ``log_prob`` at ``u_map``; computed by central differences if
         omitted.
     step : float or ndarray, shape (ndim,), optional
-        Finite-difference steps in ``u`` units; default ``1e-4 · max(1, |u_i|)``
-        (about eps^(1/4), balancing truncation and round-off for second differences).
+        Finite-difference steps in ``u`` units. By default a first pass with
+        ``1e-4 · max(1, |u_i|)`` estimates the curvature and further passes set each
+        step to 0.1 of the conditional posterior standard deviation ``1/sqrt(-H_ii)``
+        until it settles (within a factor 1.5), so the stencil probes the quadratic
+        region whatever the posterior width (relative curvature error ~h²/12 · f''''
+        /f'' ≈ 1e-3 for mildly non-Gaussian posteriors; round-off ~100 eps
+        |log_prob|).
 
     Returns
     -------
@@ -585,11 +619,23 @@ def laplace_evidence(
     if hessian is None:
         if step is None:
             h = 1e-4 * np.maximum(1.0, np.abs(u))
+            f0, grad, hess, calls = _hessian_fd(log_prob, u, h)
+            for _ in range(8):  # adapt h to 0.1 conditional sd; a few passes suffice
+                curv = -np.diag(hess)
+                if not np.all(curv > 0):
+                    break  # reported below as not negative definite
+                h_new = 0.1 / np.sqrt(curv)
+                converged_h = np.all(np.abs(np.log(h_new / h)) < math.log(1.5))
+                h = h_new
+                f0, grad, hess, more = _hessian_fd(log_prob, u, h)
+                calls += more
+                if converged_h:
+                    break
         else:
             h = np.broadcast_to(np.asarray(step, dtype=float), (d,)).copy()
-        if not np.all(h > 0):
-            raise EvidenceError(f"finite-difference steps must be positive, got {step!r}")
-        f0, grad, hess, calls = _hessian_fd(log_prob, u, h)
+            if not np.all(h > 0):
+                raise EvidenceError(f"finite-difference steps must be positive, got {step!r}")
+            f0, grad, hess, calls = _hessian_fd(log_prob, u, h)
     else:
         hess = np.asarray(hessian, dtype=float)
         if hess.shape != (d, d) or not np.all(np.isfinite(hess)):

@@ -73,7 +73,7 @@ _CUT = 12.0  # truncation of the Gaussian, in units of b
 # at distance d changes the fit by ~(d / h)^2 relative — negligible at 1e-11.
 _MERGE_TOL = 1e-11
 # Refuse meshes whose coefficient table would exceed this many bytes (see Notes of the class).
-_MAX_BYTES = 1.5e9
+_MAX_BYTES = 1.0e9
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
@@ -291,56 +291,81 @@ class HysteresisOperator:
         and the rest on composite Gauss–Legendre panels no wider than b, split at the
         piece edges.
         """
-        beta = self.breakpoints
-        n_pieces = beta.size - 1
+        n_pieces = self._wp.size
+        b_min, b_max = float(b.min()), float(b.max())
+        if b_max <= self._narrow_max:  # all narrow (the common single-b case too)
+            return self._moments_narrow(b)[:, None, :], 1
+        if b_min >= self._wide_min:
+            return self._moments_wide(b), n_pieces
+        if b.size == 1:
+            n_act = self._n_active(b_max)
+            return self._moments_panels(b, n_act), n_act
         narrow = b <= self._narrow_max
         wide = b >= self._wide_min
-        if np.all(narrow):
-            n_act = 1
-        elif np.any(wide):
-            n_act = n_pieces
-        else:
-            cut_max = min(self.length, _CUT * float(b.max()))
-            n_act = max(1, min(int(np.searchsorted(beta, cut_max)), n_pieces))
+        n_act = n_pieces if np.any(wide) else self._n_active(b_max)
         m = np.zeros((b.size, n_act, _NCOEF))
         if np.any(narrow):
-            p = b[narrow] / self._wp[0]
-            m[narrow, 0] = (p[:, None] ** np.arange(_NCOEF + 2)) @ self._narrow_e
+            m[narrow, 0] = self._moments_narrow(b[narrow])
         if np.any(wide):
-            bw = b[wide]
-            g = np.exp(-0.5 * (self._wide_u / bw[:, None, None]) ** 2) / bw[:, None, None]
-            m[wide] = np.matmul(g.transpose(1, 0, 2), self._wide_w).transpose(1, 0, 2)
+            m[wide] = self._moments_wide(b[wide])
         rest = ~(narrow | wide)
         if np.any(rest):
             m[rest] = self._moments_panels(b[rest], n_act)
         return m, n_act
+
+    def _n_active(self, b_max: float) -> int:
+        """Count the pieces that start below the kernel cut-off ``_CUT * b_max``."""
+        cut = min(self.length, _CUT * b_max)
+        return max(1, min(int(np.searchsorted(self.breakpoints, cut)), self._wp.size))
+
+    def _moments_narrow(self, b: np.ndarray) -> np.ndarray:
+        """First-piece moments in closed form (valid for b <= beta_1 / _CUT), (B, 6)."""
+        p = b / self._wp[0]
+        return (p[:, None] ** np.arange(_NCOEF + 2)) @ self._narrow_e
+
+    def _moments_wide(self, b: np.ndarray) -> np.ndarray:
+        """Moments on fixed nodes, one panel per piece (valid for b >= every piece), (B, P, 6)."""
+        r = self._wide_u / b[:, None, None]  # (B, P, 8)
+        g = np.exp(-0.5 * r * r) / b[:, None, None]
+        return np.matmul(g.transpose(1, 0, 2), self._wide_w).transpose(1, 0, 2)
 
     def _moments_panels(self, b: np.ndarray, n_act: int) -> np.ndarray:
         """Moments by composite Gauss–Legendre (panels <= b, split at piece edges), (B, P, 6)."""
         n_b = b.size
         lo = self._lo[:n_act]
         wpiece = self._wp[:n_act]
-        cut = np.minimum(self.length, _CUT * b)
-        span = np.minimum(lo + wpiece, cut[:, None]) - lo  # (B, P); <= 0: piece unused
-        counts = np.where(span > 0.0, np.ceil(span / (_PANEL * b[:, None])), 0.0)
-        counts = counts.astype(np.intp).ravel()
-        pair = np.repeat(np.arange(n_b * n_act), counts)  # panel -> (batch item, piece)
+        # Per (batch item, piece): the covered span, its panel count and panel width.
+        span = np.minimum(lo + wpiece, np.minimum(self.length, _CUT * b)[:, None]) - lo
+        span = span.ravel()
+        scale = np.repeat(b, n_act)
+        counts = np.ceil(np.maximum(span, 0.0) / (_PANEL * scale)).astype(np.intp)
+        w_r = np.tile(wpiece, n_b) / scale  # piece width in units of b
+        frac = span / (np.maximum(counts, 1) * scale * w_r)  # panel width / piece width
+        lo_r = np.tile(lo, n_b) / scale  # piece start in units of b
+        # Expand to panels.
+        pair = np.repeat(np.arange(n_b * n_act), counts)
         first = np.cumsum(counts) - counts
         j = np.arange(pair.size) - first[pair]
-        k_of, p_of = np.divmod(pair, n_act)
-        frac = (span.ravel()[pair] / counts[pair]) / wpiece[p_of]  # panel / piece width
-        s = frac[:, None] * (j[:, None] + _U_X)  # (Q, 8) local coordinate in the piece
-        bk = b[k_of][:, None]
-        r = (lo[p_of][:, None] + wpiece[p_of][:, None] * s) / bk
-        wg = (((2.0 * _INV_SQRT_2PI) * frac * wpiece[p_of])[:, None] * _U_W) / bk
-        wg *= np.exp(-0.5 * r * r)
-        first_piece = p_of == 0
-        wg[first_piece] *= s[first_piece] ** 2  # first piece: basis s² T_k(τ)
-        vals = np.polynomial.chebyshev.chebvander(2.0 * s - 1.0, _DEG)  # (Q, 8, 6)
-        per_panel = np.matmul(wg[:, None, :], vals)[:, 0]  # (Q, 6)
+        s = frac[pair, None] * (j[:, None] + _U_X)  # (Q, 8) local coordinate in the piece
+        r = lo_r[pair, None] + w_r[pair, None] * s
+        wg = ((2.0 * _INV_SQRT_2PI) * frac * w_r)[pair, None] * _U_W * np.exp(-0.5 * r * r)
+        # The first piece takes the basis s² T_k(τ) (its panels lead each batch item).
+        if n_b == 1:
+            wg[: counts[0]] *= s[: counts[0]] ** 2
+        else:
+            first_piece = pair % n_act == 0
+            wg[first_piece] *= s[first_piece] ** 2
+        tau = 2.0 * s - 1.0
+        t = np.empty((_NCOEF,) + s.shape)
+        t[0] = wg
+        t[1] = wg * tau
+        tau2 = 2.0 * tau
+        for kk in range(2, _NCOEF):  # Chebyshev recurrence, weighted
+            t[kk] = tau2 * t[kk - 1] - t[kk - 2]
+        per_panel = t.sum(axis=2)  # (6, Q)
+        nz = np.flatnonzero(counts)
         m = np.zeros((n_b * n_act, _NCOEF))
-        nz = counts > 0
-        m[nz] = np.add.reduceat(per_panel, first[nz], axis=0)
+        m[nz] = np.add.reduceat(per_panel, first[nz], axis=1).T
         return m.reshape(n_b, n_act, _NCOEF)
 
     @staticmethod

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
@@ -73,8 +74,8 @@ class PropagationError(ValueError):
 # scipy.sparse.linalg._expm_multiply._theta).
 _THETA = {8: 5.00e-2, 12: 3.00e-1, 16: 7.81e-1, 20: 1.44, 24: 2.22, 28: 3.08}
 # Paterson–Stockmeyer block size: powers X², X³, X⁴ are formed once; degree m = 4 r then
-# costs 3 + (r - 1) matrix products. With ‖A dt‖ ~ 1e3 (the benchmark) the best
-# products-plus-squarings trade-off is m = 16 (θ_16/θ_12 = 2.6, θ_20/θ_16 = 1.8).
+# costs 3 + (r - 1) matrix products. On the benchmark matrices (‖A dt‖₁ ≈ 5e3) the
+# products-plus-squarings optimum is m = 16, 20 or 24 with 10–12 squarings (~20 products).
 _Q = 4
 # Refuse matrices whose scaled norm would need more than this many squarings
 # (‖A t‖ > ~1e38): no physical beam gets there and the loop would be pointless.
@@ -82,9 +83,9 @@ _MAX_SQUARINGS = 128
 # Norm above which A is pre-scaled by a power of two before forming its powers: keeps
 # A0^24 < 2^(30·24) and the folded coefficients f^24 > 2^-800 inside double range.
 _PRESCALE_NORM = 2.0**30
-# Sets per numpy batch: 16 matrices of 64×64 are 512 KiB, so the handful of work arrays
-# stays in a core's L2 cache; whole batches of 64 ran ~1.4× slower on the development machine.
-_CHUNK = 16
+# Matrix elements per numpy chunk: 16 sets of 64×64 (512 KiB per work array) keep the
+# working set of a chunk in one core's L2 cache; whole batches of 64 were ~1.4× slower.
+_CHUNK_ELEMENTS = 16 * 64 * 64
 # Cancellation factor Σ|a_j| / (|h||z0|) of the modal sum above which response_times does
 # not trust the eigendecomposition (its rounding error is about u times it: ≲ 1e-10).
 _MAX_CANCELLATION = 1e6
@@ -151,7 +152,7 @@ def _raise_invalid(valid: np.ndarray, what: str) -> None:
 # --------------------------------------------------------------------------- state matrix
 
 
-def state_matrix(omega, C) -> np.ndarray:
+def state_matrix(omega, C, *, check: bool = True) -> np.ndarray:
     """First-order modal state matrix ``A = [[0, Ω], [-Ω, -C]]``.
 
     Parameters
@@ -161,6 +162,10 @@ def state_matrix(omega, C) -> np.ndarray:
     C : array_like, shape (B, m, m)
         Modal damping matrices ``Φᵀ D Φ`` in 1/s; symmetric (it is symmetrised here after
         a check) and, for a dissipative model, positive semidefinite.
+    check : bool, optional
+        If False, skip the value checks (finite, ω ≥ 0, symmetry; shapes are still
+        checked) so that a bad parameter set reaches the response functions, whose
+        ``return_valid=True`` then reports it per set instead of failing the whole batch.
 
     Returns
     -------
@@ -180,14 +185,14 @@ def state_matrix(omega, C) -> np.ndarray:
         raise PropagationError(
             f"C must have shape {(B, m, m)} to match omega {w.shape}, got {c.shape}"
         )
-    if not np.isfinite(w).all() or (w < 0).any():
-        raise PropagationError("omega must be finite and non-negative (rad/s)")
-    if not np.isfinite(c).all():
-        raise PropagationError("C must be finite")
     ct = np.swapaxes(c, 1, 2)
+    if check and (not np.isfinite(w).all() or (w < 0).any()):
+        raise PropagationError("omega must be finite and non-negative (rad/s)")
+    if check and not np.isfinite(c).all():
+        raise PropagationError("C must be finite")
     asym = np.abs(c - ct).max(axis=(1, 2), initial=0.0)
     scale = np.abs(c).max(axis=(1, 2), initial=0.0)
-    if (asym > 1e-8 * scale).any():
+    if check and (asym > 1e-8 * scale).any():
         raise PropagationError(
             "C must be symmetric (Φᵀ D Φ with symmetric D, physics.md §1); "
             f"largest relative asymmetry {float((asym / np.where(scale > 0, scale, 1)).max()):.3g}"
@@ -203,48 +208,89 @@ def state_matrix(omega, C) -> np.ndarray:
 # --------------------------------------------------------------------------- exponential
 
 
-def _expm_chain(A: np.ndarray, extra: int = 0) -> tuple[list[np.ndarray], np.ndarray]:
-    """Scaling-and-squaring exponential of a batch, plus ``extra`` further squares.
+def _chunk_size(s: int) -> int:
+    """Return the number of sets per numpy batch: ~512 KiB per (B, s, s) array (16 at s = 64)."""
+    return int(min(256, max(1, _CHUNK_ELEMENTS // max(1, s * s))))
 
-    Returns ``([expm(A), expm(A)^2, expm(A)^4, ..., expm(A)^(2^extra)], valid)``; rows
-    with ``valid == False`` (non-finite input or result, absurd norm) hold garbage.
-    Works best on chunks of ~16 matrices of size 64 (the working set then stays in cache).
+
+_LOCAL = threading.local()
+
+
+def _workspace(B: int, s: int, extra: int) -> dict:
+    """Per-thread work arrays, reused between calls.
+
+    Freshly allocated arrays of this size are returned to the OS when freed, so every call
+    would page-fault them in again: that cost as much as the arithmetic (measured).
+    """
+    ws = getattr(_LOCAL, "ws", None)
+    if ws is None or ws["s"] != s or ws["B"] < B or ws["extra"] < extra:
+        Bc = max(B, ws["B"] if ws is not None and ws["s"] == s else 0)
+        ex = max(extra, ws["extra"] if ws is not None and ws["s"] == s else 0)
+        ws = {
+            "B": Bc,
+            "s": s,
+            "extra": ex,
+            "pw": np.empty((Bc, _Q, s, s)),
+            "p": np.empty((Bc, s, s)),
+            "tmp": np.empty((Bc, s, s)),
+            "blk": np.empty((Bc, s, s)),
+            "blocks": np.empty((Bc, max(_THETA) // _Q, s, s)),
+            "powers": np.empty((ex + 1, Bc, s, s)),
+        }
+        _LOCAL.ws = ws
+    return ws
+
+
+def _expm_chain(
+    A: np.ndarray, extra: int = 0, scale: float = 1.0
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """Scaling-and-squaring exponential of ``A scale``, plus ``extra`` further squares.
+
+    Returns ``([E, E^2, E^4, ..., E^(2^extra)], valid)`` with ``E = expm(A scale)``; rows
+    with ``valid == False`` (non-finite input or result, absurd norm) hold garbage. The
+    returned arrays are views of this thread's workspace: use them before the next call.
+    Works best on chunks of :func:`_chunk_size` matrices (the working set stays in cache).
     Overflow is not warned about: it is detected and reported through ``valid``.
     """
     with np.errstate(over="ignore", invalid="ignore"):
-        return _expm_chain_impl(A, extra)
+        return _expm_chain_impl(A, extra, scale)
 
 
-def _expm_chain_impl(A: np.ndarray, extra: int) -> tuple[list[np.ndarray], np.ndarray]:
+def _norm1(X: np.ndarray, buf: np.ndarray) -> np.ndarray:
+    """1-norms (max column sum) of a batch (B, s, s), using ``buf`` for |X|."""
+    return np.abs(X, out=buf).sum(axis=1).max(axis=1)
+
+
+def _expm_chain_impl(A: np.ndarray, extra: int, scale: float):
     B, s, _ = A.shape
-    valid = np.isfinite(A.sum(axis=(1, 2)))
+    ws = _workspace(B, s, extra)
+    pw = ws["pw"][:B]  # A0, A0², A0³, A0⁴ with A0 = A scale 2^-s0
+    p, tmp, blk = ws["p"][:B], ws["tmp"][:B], ws["blk"][:B]
+    X = pw[:, 0]
+    np.multiply(A, scale, out=X)
+    valid = np.isfinite(X.sum(axis=(1, 2)))
     if not valid.all():
-        A = np.where(valid[:, None, None], A, 0.0)
+        X[~valid] = 0.0
     # Exact power-of-two pre-scaling, only for very large norms, so that neither the powers
-    # A0^k (k ≤ 24) nor the folded coefficients c_k 2^(e k) below can over- or underflow.
-    norm = np.abs(A).sum(axis=1).max(axis=1)
+    # A0^k nor the folded coefficients c_k 2^(e k) below can over- or underflow.
+    norm = _norm1(X, blk)
     with np.errstate(divide="ignore"):
         s0 = np.where(norm > _PRESCALE_NORM, np.ceil(np.log2(norm / _PRESCALE_NORM)), 0.0)
     s0 = s0.astype(np.int64)
     if (s0 > _MAX_SQUARINGS).any():
         valid &= s0 <= _MAX_SQUARINGS
         s0[s0 > _MAX_SQUARINGS] = 0
-    pw = np.empty((B, _Q, s, s))  # A0, A0², A0³, A0⁴ with A0 = A 2^-s0
     if s0.any():
-        np.multiply(A, np.exp2(-s0.astype(float))[:, None, None], out=pw[:, 0])
-    else:
-        pw[:, 0] = A
-    np.matmul(pw[:, 0], pw[:, 0], out=pw[:, 1])
-    np.matmul(pw[:, 1], pw[:, 0], out=pw[:, 2])
+        X *= np.exp2(-s0.astype(float))[:, None, None]
+    np.matmul(X, X, out=pw[:, 1])
+    np.matmul(pw[:, 1], X, out=pw[:, 2])
     np.matmul(pw[:, 1], pw[:, 1], out=pw[:, 3])
     # α_3 = max(‖A³‖^(1/3), ‖A⁴‖^(1/4)) bounds the Taylor remainder for degree m ≥ 5
     # (Al-Mohy & Higham 2009, Thm 4.2 with p = 3); ≤ ‖A‖ and often much smaller.
-    d3 = np.abs(pw[:, 2]).sum(axis=1).max(axis=1) ** (1 / 3)
-    d4 = np.abs(pw[:, 3]).sum(axis=1).max(axis=1) ** (1 / 4)
-    alpha = np.maximum(d3, d4)
+    alpha = np.maximum(_norm1(pw[:, 2], blk) ** (1 / 3), _norm1(pw[:, 3], blk) ** (1 / 4))
     valid &= np.isfinite(alpha)
     alpha[~valid] = 0.0
-    # Per matrix, the degree m (4 ≤ ... ≤ 28) and squarings s minimising the number of
+    # Per matrix, the degree m (8 ≤ m ≤ 28) and squarings s minimising the number of
     # products (m/4 - 1 Horner steps + s), ties to the higher degree (fewer squarings: the
     # rounding error of squaring grows like 2^s u). Choosing per matrix, not per batch,
     # makes each set's result independent of the other sets in the batch.
@@ -262,7 +308,7 @@ def _expm_chain_impl(A: np.ndarray, extra: int) -> tuple[list[np.ndarray], np.nd
         s_tot = np.where(better, s_m, s_tot)
     m_max = int(m_b.max())
     r = m_max // _Q
-    # Taylor polynomial of X = A0 f (f = 2^(s0 - s)) by Paterson–Stockmeyer in A0⁴:
+    # Taylor polynomial of X f (f = 2^(s0 - s)) by Paterson–Stockmeyer in A0⁴:
     # T_m(X) = Σ_j Bj (A0⁴)^j,  Bj = Σ_{i<4} c_{4j+i} f^(4j+i) A0^i  (+ c_m f^m A0⁴ in the
     # top block). The scale f goes into the coefficients (exact: f is a power of two), so
     # no scaled copies of the powers are made. Matrices of lower degree get zero blocks
@@ -280,17 +326,16 @@ def _expm_chain_impl(A: np.ndarray, extra: int) -> tuple[list[np.ndarray], np.nd
     diag = coef[:, :, 0]  # (B, r) identity coefficients
     flat = pw.reshape(B, _Q, s * s)
 
-    def block(j: int) -> np.ndarray:
-        out = (W[:, j : j + 1] @ flat).reshape(B, s, s)
-        out.reshape(B, s * s)[:, :: s + 1] += diag[:, j : j + 1]
-        return out
-
-    p = block(r - 1)
-    tmp = np.empty_like(p)
+    # All blocks in one batched product (reads the powers once), identity terms on the
+    # diagonal, then Horner: p = B_{r-1}; p = p A0⁴ + B_j.
+    blocks = ws["blocks"][:B, :r]
+    np.matmul(W, flat, out=blocks.reshape(B, r, s * s))
+    blocks.reshape(B, r, s * s)[:, :, :: s + 1] += diag[:, :, None]
     A4 = pw[:, 3]
+    p[...] = blocks[:, r - 1]
     for j in range(r - 2, -1, -1):
         np.matmul(p, A4, out=tmp)
-        tmp += block(j)
+        tmp += blocks[:, j]
         p, tmp = tmp, p
     for step in range(int(s_tot.max(initial=0))):
         mask = s_tot > step
@@ -300,11 +345,12 @@ def _expm_chain_impl(A: np.ndarray, extra: int) -> tuple[list[np.ndarray], np.nd
         else:
             idx = np.flatnonzero(mask)
             p[idx] = p[idx] @ p[idx]
-    out = [p]
-    for _ in range(extra):
-        out.append(out[-1] @ out[-1])
-    valid &= np.isfinite(out[-1].sum(axis=(1, 2)))
-    return out, valid
+    powers = ws["powers"][:, :B]
+    powers[0] = p
+    for j in range(extra):
+        np.matmul(powers[j], powers[j], out=powers[j + 1])
+    valid &= np.isfinite(powers[extra].sum(axis=(1, 2)))
+    return [powers[j] for j in range(extra + 1)], valid
 
 
 def expm_batched(A) -> np.ndarray:
@@ -336,8 +382,9 @@ def expm_batched(A) -> np.ndarray:
         return A.copy()
     out = np.empty_like(A)
     valid = np.empty(A.shape[0], dtype=bool)
-    for i in range(0, A.shape[0], _CHUNK):
-        (out[i : i + _CHUNK],), valid[i : i + _CHUNK] = _expm_chain(A[i : i + _CHUNK])
+    ch = _chunk_size(A.shape[1])
+    for i in range(0, A.shape[0], ch):
+        (out[i : i + ch],), valid[i : i + ch] = _expm_chain(A[i : i + ch])
     if not valid.all():
         _raise_invalid(valid, "A (or expm(A))")
     return out
@@ -400,7 +447,7 @@ def _run_split(run, B: int, n: int, pieces: list[slice], threads: int):
 
 def _uniform_chunk(A, z0, h, dt, n, k):
     B, s, _ = A.shape
-    powers, valid = _expm_chain(A * dt, extra=k)
+    powers, valid = _expm_chain(A, extra=k, scale=dt)
     nb = 2**k
     ng = -(-n // nb)
     # Left rows hᵀ P^b, b = 0..nb-1, by doubling: [L; L P^(2^j)].
@@ -488,16 +535,17 @@ def response_uniform(
     ok = _finite_rows(A, z0, h)
     if not return_valid and not ok.all():
         _raise_invalid(ok, "A, z0 or h")
-    if B == 0 or n == 0:
+    if B == 0 or n == 0 or s == 0:
         y = np.zeros((B, n))
         return (y, ok) if return_valid else y
     A = np.where(ok[:, None, None], A, 0.0)
     z0 = np.where(ok[:, None], z0, 0.0)
     h = np.where(ok[:, None], h, 0.0)
     use = _pick_backend(backend)
-    threads = _default_threads() if threads is None else int(threads)
-    if threads < 1:
-        raise PropagationError(f"threads must be >= 1 or None, got {threads}")
+    if threads is None:
+        threads = _default_threads()
+    elif isinstance(threads, bool) or not isinstance(threads, int | np.integer) or threads < 1:
+        raise PropagationError(f"threads must be an integer >= 1 or None, got {threads!r}")
     if use == "numba":
         # Serial compiled kernel; one contiguous piece per thread (it releases the GIL).
         run = _uniform_numba(A, z0, h, dt, n)
@@ -505,7 +553,8 @@ def response_uniform(
         pieces = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
     else:
         run = _uniform_numpy(A, z0, h, dt, n)
-        pieces = [slice(i, i + _CHUNK) for i in range(0, B, _CHUNK)]
+        ch = _chunk_size(s)
+        pieces = [slice(i, i + ch) for i in range(0, B, ch)]
     y, valid = _run_split(run, B, n, pieces, threads)
     valid &= ok & np.isfinite(y).all(axis=1)
     if not return_valid:
@@ -519,10 +568,11 @@ def response_uniform(
 # --------------------------------------------------------------------------- arbitrary times
 
 
-def _times_direct(A: np.ndarray, z0: np.ndarray, h: np.ndarray, t: np.ndarray, chunk: int = 64):
+def _times_direct(A: np.ndarray, z0: np.ndarray, h: np.ndarray, t: np.ndarray):
     """``h · expm(A t_k) z0`` for one matrix A (s, s), one exponential per time."""
     y = np.empty(t.size)
     ok = True
+    chunk = _chunk_size(A.shape[0])
     for i in range(0, t.size, chunk):
         tc = t[i : i + chunk]
         (E,), v = _expm_chain(A[None] * tc[:, None, None])
@@ -560,22 +610,43 @@ def _eig_coefficients(A: np.ndarray, z0: np.ndarray, h: np.ndarray):
                 c[b] = np.linalg.solve(V[b], rhs[b])[:, 0]
             except np.linalg.LinAlgError:
                 continue  # stays NaN: reported as ill-conditioned by the caller
-    return lam, (h.astype(complex)[:, None, :] @ V)[:, 0] * c
+    # einsum, not matmul: numpy's complex matmul with a one-row operand is very slow.
+    return lam, np.einsum("bi,bij->bj", h, V) * c
 
 
 def _modal_sum(lam: np.ndarray, coef: np.ndarray, t: np.ndarray) -> np.ndarray:
     """``Re Σ_j coef_j exp(λ_j t)`` for (B, s) λ, coef and times (T,) -> (B, T)."""
     # Conjugate pairs contribute equal real parts: keep Im λ ≥ 0, doubling Im λ > 0
     # (LAPACK's geev returns exactly conjugate pairs for real input).
-    wgt = np.where(lam.imag > 0, 2.0, np.where(lam.imag == 0, 1.0, 0.0))
-    order = np.argsort(lam.imag < 0, axis=1, kind="stable")
-    keep = int((lam.imag >= 0).sum(axis=1).max())
+    coef = coef * np.where(lam.imag > 0, 2.0, np.where(lam.imag == 0, 1.0, 0.0))
+    # Terms that have decayed below 1e-17 of Σ|a| by the first positive time (stiff,
+    # overdamped modes: e^(Re λ dt) ~ e^-300) only matter at t = 0, where e^0 = 1: add them
+    # there as a constant and leave them out of the exponentials (a 2-3x saving, exact to
+    # rounding).
+    t_pos = t[t > 0]
+    if t_pos.size:
+        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+            late = np.abs(coef) * np.exp(lam.real * t_pos.min())
+        drop = (late < 1e-17 * np.abs(coef).sum(axis=1, keepdims=True)) | (coef == 0)
+    else:
+        drop = coef == 0
+    at_zero = np.where(drop, coef.real, 0.0).sum(axis=1)
+    order = np.argsort(drop, axis=1, kind="stable")
+    keep = max(1, int((~drop).sum(axis=1).max()))
     sel = order[:, :keep]
     lam = np.take_along_axis(lam, sel, axis=1)
-    coef = np.take_along_axis(coef * wgt, sel, axis=1)
-    with np.errstate(over="ignore", invalid="ignore"):
+    coef = np.where(np.take_along_axis(drop, sel, axis=1), 0, np.take_along_axis(coef, sel, 1))
+    # Re(e^{λt} a) = Re e^{λt} Re a - Im e^{λt} Im a: one real product on the interleaved
+    # (Re, Im) view of the complex exponentials (numpy's complex matmul with these shapes
+    # does not use BLAS and is ~1000x slower).
+    w = np.empty((coef.shape[0], keep, 2))
+    w[:, :, 0] = coef.real
+    w[:, :, 1] = -coef.imag
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
         E = np.exp(t[None, :, None] * lam[:, None, :])
-        return (E @ coef[:, :, None])[:, :, 0].real
+        y = (E.view(float) @ w.reshape(-1, 2 * keep, 1))[:, :, 0]
+    y[:, t == 0] += at_zero[:, None]
+    return y
 
 
 def response_times(

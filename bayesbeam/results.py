@@ -143,6 +143,10 @@ class FitResult:
         Sampler and likelihood settings (JSON-serialisable values).
     provenance : mapping
         Versions, time, inputs; see :func:`make_provenance`.
+    derived : mapping of str to ndarray, shape (nsteps, nwalkers)
+        Quantities computed from each sample in physical units (e.g. the
+        spatial-hysteresis strength ``a`` when ``eta`` is sampled); summarised and
+        stored in the posterior group beside the sampled parameters.
     """
 
     model: str
@@ -151,6 +155,7 @@ class FitResult:
     map_u: np.ndarray | None = None
     settings: Mapping[str, Any] = field(default_factory=dict)
     provenance: Mapping[str, Any] = field(default_factory=dict)
+    derived: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not isinstance(self.priors, PriorSet):
@@ -168,6 +173,17 @@ class FitResult:
             object.__setattr__(self, "map_u", m)
         object.__setattr__(self, "settings", _frozen_mapping(self.settings))
         object.__setattr__(self, "provenance", _frozen_mapping(self.provenance))
+        derived = {}
+        for name, arr in dict(self.derived).items():
+            a = np.array(arr, dtype=float)
+            if a.shape != self.chain.samples.shape[:2]:
+                raise ResultError(
+                    f"derived[{name!r}] must have shape {self.chain.samples.shape[:2]} "
+                    f"(nsteps, nwalkers), got {a.shape}"
+                )
+            a.setflags(write=False)
+            derived[name] = a
+        object.__setattr__(self, "derived", _frozen_mapping(derived))
 
     # -- derived values --------------------------------------------------------------
     @property
@@ -203,6 +219,12 @@ class FitResult:
         for j, name in enumerate(self.names):
             row = {"mean": float(np.mean(flat[:, j])), "sd": float(np.std(flat[:, j], ddof=1))}
             row.update({k: float(q[i, j]) for i, k in enumerate(_QUANTILES)})
+            out[name] = row
+        for name, arr in self.derived.items():
+            a = arr.reshape(-1)
+            qs = np.quantile(a, list(_QUANTILES.values()))
+            row = {"mean": float(np.mean(a)), "sd": float(np.std(a, ddof=1))}
+            row.update({k: float(qs[i]) for i, k in enumerate(_QUANTILES)})
             out[name] = row
         return out
 
@@ -282,11 +304,12 @@ class FitResult:
             + f" {'ess':>7} {'tau':>7} {'rhat':>6}",
         ]
         for j, (name, row) in enumerate(self.summary().items()):
-            lines.append(
-                f"{name:<{width}} "
-                + " ".join(f"{row[k]:>11.4g}" for k in cols)
-                + f" {c.ess[j]:>7.0f} {c.tau[j]:>7.1f} {c.rhat[j]:>6.3f}"
+            diag = (
+                f" {c.ess[j]:>7.0f} {c.tau[j]:>7.1f} {c.rhat[j]:>6.3f}"
+                if j < c.ndim
+                else "   (derived)"
             )
+            lines.append(f"{name:<{width}} " + " ".join(f"{row[k]:>11.4g}" for k in cols) + diag)
         return "\n".join(lines)
 
     # -- ArviZ -----------------------------------------------------------------------
@@ -341,7 +364,10 @@ class FitResult:
         theta = np.swapaxes(self.theta_samples(), 0, 1)  # (walker=chain, step=draw, ndim)
         u = np.swapaxes(c.samples, 0, 1)
         groups: dict[str, dict[str, np.ndarray]] = {
-            "posterior": {n: theta[..., j] for j, n in enumerate(self.names)},
+            "posterior": {
+                **{n: theta[..., j] for j, n in enumerate(self.names)},
+                **{n: np.swapaxes(a, 0, 1) for n, a in self.derived.items()},
+            },
             "unconstrained_posterior": {n: u[..., j] for j, n in enumerate(self.names)},
             "sample_stats": {"lp": np.swapaxes(c.log_prob, 0, 1)},
         }
@@ -495,7 +521,14 @@ class FitResult:
             n_steps_total=int(meta["n_steps_total"]),
         )
         map_u = json.loads(a["map_u"])
+        post = idata["posterior"]
+        derived = {
+            n: np.swapaxes(np.asarray(post[n].values), 0, 1)
+            for n in post.data_vars
+            if n not in names
+        }
         return cls(
+            derived=derived,
             model=str(a["model"]),
             chain=chain,
             priors=PriorSet.from_dict(json.loads(a["priors"])),

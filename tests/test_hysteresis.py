@@ -367,3 +367,11 @@ def test_bad_shapes_raise():
         op.projected(np.array([1e-3]), np.eye(op.n + 1))
     with pytest.raises(HysteresisError, match="match"):
         op.projected(np.array([1e-3, 2e-3]), np.ones((3, op.n, 2)))
+
+
+def test_huge_coefficient_table_is_refused():
+    # 80 random elements: ~3200 distinct node differences x 6 x 160² doubles ≈ 4 GB.
+    rng = np.random.default_rng(3)
+    nodes = np.concatenate([[0.0], np.sort(rng.uniform(0.0, L, 79)), [L]])
+    with pytest.raises(HysteresisError, match="GB"):
+        HysteresisOperator(nodes)

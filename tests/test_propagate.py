@@ -111,6 +111,15 @@ def test_state_matrix_rejects(omega, C, match):
         pg.state_matrix(omega, C)
 
 
+def test_state_matrix_unchecked_lets_bad_sets_reach_the_mask():
+    omega = np.array([[10.0], [np.nan]])
+    A = pg.state_matrix(omega, np.ones((2, 1, 1)), check=False)
+    y, valid = pg.response_uniform(A, [1.0, 0.0], [1.0, 0.0], 0.01, 4, return_valid=True)
+    assert valid.tolist() == [True, False] and np.isnan(y[1]).all()
+    with pytest.raises(PropagationError, match="shape"):
+        pg.state_matrix(omega, np.ones((2, 2, 2)), check=False)
+
+
 # --------------------------------------------------------------------------- expm
 
 
@@ -423,6 +432,26 @@ def test_numba_backend_unavailable_is_reported(monkeypatch):
     # "auto" falls back to numpy silently (same results by construction).
     y = pg.response_uniform(single_mode(10.0, 0.1), [1, 0], [1, 0], 0.01, 5, backend="auto")
     assert y.shape == (1, 5)
+
+
+def test_numba_kernel_logic_in_plain_python():
+    # The kernel is plain Python until numba compiles it; run it uncompiled on a small
+    # system (fast enough) so its logic is checked even where numba is not installed.
+    A, rng = stiff_batch(3, seed=15, n_el=2)
+    s = A.shape[1]
+    z0 = rng.standard_normal((3, s))
+    h = rng.standard_normal((3, s))
+    A[1, 0, 1] = np.inf  # an invalid set: reported, not propagated
+    y0, v0 = pg.response_uniform(A, z0, h, DT, 77, return_valid=True)
+    degrees = np.array(sorted(pg._THETA), dtype=np.int64)
+    theta = np.array([pg._THETA[d] for d in degrees])
+    y1, v1 = pg._uniform_kernel_py(
+        np.where(np.isfinite(A), A, 0.0), z0, h, DT, 77, pg._plan(77), theta, degrees,
+        pg._inv_factorials(28), pg._PRESCALE_NORM, pg._MAX_SQUARINGS,
+    )  # fmt: skip
+    assert v0.tolist() == [True, False, True] and v1.tolist() == [True, True, True]
+    # Same algorithm, sums ordered differently: ~u per step, 77 steps.
+    assert np.abs(y1[v0] - y0[v0]).max() <= 1e-12 * np.abs(y0[v0]).max()
 
 
 @pytest.mark.slow
