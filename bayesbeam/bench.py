@@ -25,7 +25,7 @@ from scipy.integrate import solve_ivp
 from bayesbeam.beam import Beam
 from bayesbeam.forward import Forward
 
-__all__ = ["bench_beam", "bench_params", "run_bench"]
+__all__ = ["bench_beam", "bench_params", "format_bench", "run_bench"]
 
 N_SETS = 64
 N_SAMPLES = 1280
@@ -84,9 +84,9 @@ def _expm_stepping(A: np.ndarray, z0: np.ndarray, h: np.ndarray, n: int) -> np.n
     return y
 
 
-def _rk45_one(theta: np.ndarray, n_elements: int) -> float:
+def _rk45_one(theta: np.ndarray, n_elements: int, n_samples: int) -> float:
     beam = bench_beam()
-    times = np.arange(N_SAMPLES) * DT
+    times = np.arange(n_samples) * DT
     fwd = Forward(beam, "viscous+sh", times, n_elements=n_elements)
     fe = fwd.fe
     E, gamma, a, b, w0 = theta
@@ -102,13 +102,29 @@ def _rk45_one(theta: np.ndarray, n_elements: int) -> float:
         return np.concatenate([v, -Minv @ (K @ c + D @ v)])
 
     t0 = time.perf_counter()
-    solve_ivp(rhs, (0, times[-1]), np.concatenate([c0, np.zeros(n)]), method="RK45",
-              rtol=1e-6, atol=1e-12, t_eval=times)
-    return time.perf_counter() - t0
+    sol = solve_ivp(
+        rhs,
+        (0, times[-1]),
+        np.concatenate([c0, np.zeros(n)]),
+        method="RK45",
+        rtol=1e-6,
+        atol=1e-12,
+        t_eval=times,
+    )
+    elapsed = time.perf_counter() - t0
+    if not sol.success:  # a failed run would make a meaningless (short) timing
+        raise RuntimeError(f"solve_ivp RK45 failed in the benchmark: {sol.message}")
+    return elapsed
 
 
 def run_bench(
-    *, n_elements: int = 16, repeats: int = 5, rk45_elements: int = 4, seed: int = 0
+    *,
+    n_elements: int = 16,
+    repeats: int = 5,
+    rk45_elements: int = 4,
+    seed: int = 0,
+    n_sets: int = N_SETS,
+    n_samples: int = N_SAMPLES,
 ) -> dict[str, float]:
     """Run the benchmark and return its figures.
 
@@ -122,29 +138,45 @@ def run_bench(
         Elements for the RK45 reference (its cost grows as N⁴).
     seed : int
         Seed of the parameter draws.
+    n_sets : int
+        Parameter sets in the batch (64 in the issue; fewer for a quick smoke test).
+    n_samples : int
+        Samples per response at dt = 0.003906 s (1280 in the issue).
 
     Returns
     -------
     dict
-        ``per_set_s``, ``expm_per_set_s``, ``rk45_per_set_s``, ``rk45_elements``,
-        ``max_rel_diff``, ``speedup_vs_expm``, ``speedup_vs_rk45``, ``n_sets``.
+        ``per_set_s`` (s per parameter set of the batched forward model),
+        ``expm_per_set_s``, ``rk45_per_set_s``, ``rk45_elements``, ``max_rel_diff``
+        (forward model vs expm stepping, max over up to 16 sets of max|Δy| / max|y|),
+        ``speedup_vs_expm``, ``speedup_vs_rk45``, ``n_sets``, ``n_samples``,
+        ``n_elements``.
     """
+    for label, v in (("n_sets", n_sets), ("n_samples", n_samples), ("repeats", repeats)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+            raise ValueError(f"{label} must be a positive integer, got {v!r}")
+    if n_samples < 2:
+        raise ValueError(f"n_samples must be at least 2, got {n_samples}")
     rng = np.random.default_rng(seed)
-    times = np.arange(N_SAMPLES) * DT
+    times = np.arange(n_samples) * DT
     fwd = Forward(bench_beam(), "viscous+sh", times, n_elements=n_elements)
-    theta = bench_params(fwd, N_SETS, rng)
+    theta = bench_params(fwd, n_sets, rng)
     fwd.simulate(theta)  # warm-up (caches, BLAS threads)
-    per_set = _median_time(lambda: fwd.simulate(theta), repeats) / N_SETS
-    y = fwd.simulate(theta).y
+    per_set = _median_time(lambda: fwd.simulate(theta), repeats) / n_sets
+    res = fwd.simulate(theta)
+    if not res.valid.all():
+        raise RuntimeError("benchmark parameter sets were rejected by the forward model")
+    y = res.y
     A, z0, h = fwd.state_space(theta)
-    n_ref = min(N_SETS, 16)
+    n_ref = min(n_sets, 16)
     expm_times, diffs = [], []
     for i in range(n_ref):
         t0 = time.perf_counter()
-        y_ref = _expm_stepping(A[i], z0[i], h[i], N_SAMPLES)
+        y_ref = _expm_stepping(A[i], z0[i], h[i], n_samples)
         expm_times.append(time.perf_counter() - t0)
         diffs.append(np.max(np.abs(y[i] - y_ref)) / np.max(np.abs(y_ref)))
-    rk45 = float(np.median([_rk45_one(theta[0], rk45_elements) for _ in range(max(1, repeats // 2))]))
+    rk45_runs = [_rk45_one(theta[0], rk45_elements, n_samples) for _ in range(max(1, repeats // 2))]
+    rk45 = float(np.median(rk45_runs))
     expm_per_set = float(np.median(expm_times))
     return {
         "per_set_s": per_set,
@@ -154,7 +186,8 @@ def run_bench(
         "max_rel_diff": float(np.max(diffs)),
         "speedup_vs_expm": expm_per_set / per_set,
         "speedup_vs_rk45": rk45 / per_set,
-        "n_sets": N_SETS,
+        "n_sets": n_sets,
+        "n_samples": n_samples,
         "n_elements": n_elements,
     }
 
@@ -174,11 +207,13 @@ def format_bench(res: dict[str, float]) -> str:
     return "\n".join(
         [
             f"forward-model benchmark: viscous+sh, {res['n_elements']} elements, "
-            f"{N_SAMPLES} samples, {res['n_sets']} parameter sets (medians)",
+            f"{res.get('n_samples', N_SAMPLES)} samples, {res['n_sets']} parameter sets "
+            "(medians)",
             f"  batched forward model : {res['per_set_s'] * 1e6:10.1f} µs per set",
             f"  expm stepping (scipy) : {res['expm_per_set_s'] * 1e6:10.1f} µs per set"
             f"   ratio {res['speedup_vs_expm']:.1f}x",
-            f"  solve_ivp RK45 ({res['rk45_elements']} el.) : {res['rk45_per_set_s']:10.3f} s per set"
+            f"  solve_ivp RK45 ({res['rk45_elements']} el.) : "
+            f"{res['rk45_per_set_s']:10.3f} s per set"
             f"   ratio {res['speedup_vs_rk45']:.0f}x",
             f"  max relative difference forward vs expm stepping: {res['max_rel_diff']:.2e}",
         ]

@@ -21,7 +21,7 @@ import scipy.optimize as sopt
 import scipy.signal as ssig
 
 from bayesbeam.models import Model, parse_model
-from bayesbeam.problem import BETA1, Problem, first_frequency
+from bayesbeam.problem import Problem, first_frequency
 from bayesbeam.results import FitResult, make_provenance
 from bayesbeam.sampling import Chain, init_walkers, run_emcee
 from bayesbeam.trial import Trial
@@ -140,7 +140,8 @@ def _start_points(problem: Problem, rng: np.random.Generator, n_starts: int) -> 
             elif n == "tip_mass":
                 X[i, j] = 0.02 * beam.beam_mass * (1 if i == 0 else 10 ** rng.uniform(-1, 1))
             elif n == "root_spring":
-                X[i, j] = 100 * E0 * beam.I / beam.length * (1 if i == 0 else 10 ** rng.uniform(-1, 1))
+                k_ref = 100 * E0 * beam.I / beam.length  # κ = k L/(E I) = 100: a stiff clamp
+                X[i, j] = k_ref * (1 if i == 0 else 10 ** rng.uniform(-1, 1))
             elif n == "stiffness_gradient":
                 X[i, j] = 0.0 if i == 0 else rng.uniform(-0.3, 0.3)
             elif n == "rho":
@@ -406,7 +407,8 @@ def fit(
             "data_sha256": trial.sha256,
             "data_source": dict(trial.source),
             "model": model.name,
-            "k1_for_eta": BETA1 / trial.beam.length,
+            "eta_definition": "eta = a * s1(b), s1 = first-mode S(b) damping over KV per c_d*I "
+            "(bayesbeam.problem; a is stored as a derived quantity)",
         }
     )
     return FitResult(

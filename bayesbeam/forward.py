@@ -18,7 +18,7 @@ import scipy.linalg as sla
 
 from bayesbeam import propagate
 from bayesbeam.beam import Beam
-from bayesbeam.fem import FEModel, assemble
+from bayesbeam.fem import FEModel, assemble, static_tip_shape
 from bayesbeam.hysteresis import HysteresisOperator
 from bayesbeam.models import Model, parse_model
 
@@ -149,6 +149,11 @@ class Forward:
         root_dof = beam.root_spring is not None or "root_spring" in self.model.structural
         self.fe: FEModel = assemble(beam, n_elements, root_dof=root_dof)
         n = self.fe.M.shape[0]
+        if initial.startswith("modes:") and len(self._init_names) // 2 > n:
+            raise ForwardError(
+                f"initial={initial!r} asks for {len(self._init_names) // 2} modes but "
+                f"{n_elements} elements have only {n}; use K <= {n}"
+            )
         if initial == "state":
             if initial_state is None:
                 raise ForwardError("initial='state' needs initial_state=(c0, v0)")
@@ -168,8 +173,14 @@ class Forward:
             self._phi = phi
             self._G = phi.T @ self.fe.G @ phi
             self._KV = phi.T @ self.fe.KV @ phi
-            shape = np.linalg.solve(self.fe.K, self.fe.tip)
+            # Static tip-load shape by statics (fem.static_tip_shape: a few ulp, where a solve
+            # with the ill-conditioned K loses ~1e-11), normalised to unit tip deflection.
+            shape = static_tip_shape(self.fe, 1.0)
             self._release = shape / (self.fe.tip @ shape)
+            # Modal images of the fixed initial-condition shapes (per unit w0 / p0), so that
+            # a batch only scales them: q0 = Φᵀ M c0 and q0' = Φᵀ M M⁻¹ tip p0 = Φᵀ tip p0.
+            self._q_release = phi.T @ (self.fe.M @ self._release)
+            self._q_impulse = phi.T @ self.fe.tip
 
     # -- helpers --------------------------------------------------------------------
     def _columns(self, theta: np.ndarray | dict) -> np.ndarray:
@@ -253,6 +264,13 @@ class Forward:
         M = fe.M[None] + mt[:, None, None] * fe.M_tip[None]
         K = E[:, None, None] * (fe.K[None] + g[:, None, None] * fe.K_grad[None])
         K = K + kr[:, None, None] * fe.K_root[None]
+        # Sets whose matrices overflow (e.g. a huge tip mass) would make LAPACK fail for the
+        # whole batch: give them harmless matrices here and NaN frequencies below, so that
+        # simulate() flags them invalid instead of raising.
+        bad = ~(np.isfinite(M).all(axis=(1, 2)) & np.isfinite(K).all(axis=(1, 2)))
+        if bad.any():
+            M[bad] = fe.M
+            K[bad] = fe.K
         # Generalised symmetric eigenproblem via Cholesky of M: K̃ = L⁻¹ K L⁻ᵀ.
         Lc = np.linalg.cholesky(M)
         Li = np.linalg.inv(Lc)
@@ -260,6 +278,7 @@ class Forward:
         w2, V = np.linalg.eigh(0.5 * (Kt + np.swapaxes(Kt, 1, 2)))
         phi = np.swapaxes(Li, 1, 2) @ V
         omega = np.sqrt(np.maximum(w2, 0.0))
+        omega[bad] = np.nan
         pt = np.swapaxes(phi, 1, 2)
         C = np.zeros((B, phi.shape[2], phi.shape[2]))
         if "viscous" in self.model.laws:
@@ -268,15 +287,15 @@ class Forward:
             C += self._get(theta, "c_d")[:, None, None] * (pt @ fe.KV @ phi)
         if self.sh is not None:
             a, b = self._get(theta, "a"), self._get(theta, "b")
-            S = np.stack([self.sh.matrix(bk) for bk in b])
-            C += a[:, None, None] * (pt @ S @ phi)
+            # One batched S(b_k) per set (the mode shapes differ between sets).
+            C += a[:, None, None] * self.sh.projected(b, phi)
         self._last_K = K
         return omega, C, phi
 
     def _initial_state(
         self, theta: np.ndarray, omega: np.ndarray, phi: np.ndarray
     ) -> np.ndarray | None:
-        """Initial modal state z0 = [Ω q0; q0'], shape (B, 2m); None rows flagged later."""
+        """Return the initial modal state z0 = [Ω q0; q0'], shape (B, 2m)."""
         fe = self.fe
         B, m = omega.shape
         phi_b = np.broadcast_to(phi, (B,) + phi.shape[-2:])
@@ -284,19 +303,24 @@ class Forward:
         q0 = np.zeros((B, m))
         v0 = np.zeros((B, m))
         if self.initial == "release":
+            w0 = self._get(theta, "w0")[:, None]
             if self._fixed:
-                shape = np.broadcast_to(self._release, (B, self._release.size))
+                q0 = w0 * self._q_release[None, :]
             else:
-                shape = np.linalg.solve(self._last_K, np.broadcast_to(fe.tip, (B, fe.tip.size)))
+                # (B, n, 1) right-hand side: numpy >= 2 reads a (B, n) one as a matrix.
+                rhs = np.broadcast_to(fe.tip[:, None], (B, fe.tip.size, 1))
+                shape = np.linalg.solve(self._last_K, rhs)[..., 0]
                 shape = shape / (shape @ fe.tip)[:, None]
-            c0 = self._get(theta, "w0")[:, None] * shape
-            q0 = np.einsum("bmn,nk,bk->bm", pt, fe.M, c0) if self._fixed else None
-            if q0 is None:
+                c0 = w0 * shape
                 mt = self._get(theta, "tip_mass")
                 Mc = c0 @ fe.M + mt[:, None] * (c0 @ fe.M_tip)
                 q0 = np.einsum("bmn,bn->bm", pt, Mc)
         elif self.initial == "impulse":
-            v0 = self._get(theta, "p0")[:, None] * np.einsum("bmn,n->bm", pt, fe.tip)
+            p0 = self._get(theta, "p0")[:, None]
+            if self._fixed:
+                v0 = p0 * self._q_impulse[None, :]
+            else:
+                v0 = p0 * np.einsum("bmn,n->bm", pt, fe.tip)
         elif self.initial == "state":
             c0, vv = self._state
             if self._fixed:
@@ -344,15 +368,35 @@ class Forward:
         A : ndarray, shape (B, 2m, 2m)
             State matrix of z' = A z, z = [Ω q; q'].
         z0 : ndarray, shape (B, 2m)
-            Initial state at ``times[0]``.
+            Initial state at :attr:`t0` (the instant the initial condition holds; equal to
+            ``times[0]`` unless ``t0`` was given).
         h : ndarray, shape (B, 2m)
             Output row: the sensor signal is y = h·z (SI units of the quantity).
         """
-        theta = self._columns(theta)
+        return self._state_space(self._columns(theta), check=True)
+
+    def _state_space(
+        self, theta: np.ndarray, *, check: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         omega, C, phi = self.modal_system(theta)
         z0 = self._initial_state(theta, omega, phi)
         h = self._output(omega, C, phi)
-        return propagate.state_matrix(omega, C), z0, h
+        return propagate.state_matrix(omega, C, check=check), z0, h
+
+    def _lead_state(self, A: np.ndarray, z0: np.ndarray) -> np.ndarray:
+        """Propagate z0 from t0 to the first sample, exactly; NaN rows where that fails."""
+        try:
+            P = propagate.expm_batched(A * self._lead)
+        except propagate.PropagationError:
+            # Some set overflows (absurd parameters): redo one by one so that only those
+            # sets are lost, not the batch.
+            P = np.full(A.shape, np.nan)
+            for k in range(A.shape[0]):
+                try:
+                    P[k] = propagate.expm_batched(A[k : k + 1] * self._lead)[0]
+                except propagate.PropagationError:
+                    continue  # stays NaN: flagged invalid by the caller
+        return np.einsum("bij,bj->bi", P, z0)
 
     def simulate(self, theta: np.ndarray | dict) -> Response:
         """Sensor signal for a batch of parameter sets.
@@ -375,22 +419,20 @@ class Forward:
         if not np.any(valid):
             return Response(y, valid)
         th = theta[valid]
+        # Admissible but extreme sets can still overflow (e.g. E = 1e300): the propagator
+        # reports them through its mask (return_valid=True); they are flagged here and
+        # never raise for the whole batch (emcee evaluates whole ensembles at once).
         with np.errstate(all="ignore"):
-            A, z0, h = self.state_space(th)
+            A, z0, h = self._state_space(th, check=False)
             if self._lead > 0:
                 # The state at the first sample: exact propagation over the lead time.
-                z0 = np.einsum("bij,bj->bi", propagate.expm_batched(A * self._lead), z0)
-            ok = (
-                np.all(np.isfinite(A), axis=(1, 2))
-                & np.all(np.isfinite(z0), axis=1)
-                & np.all(np.isfinite(h), axis=1)
-            )
-            yy = np.zeros((th.shape[0], self._t.size))
-            if np.any(ok):
-                if self.uniform:
-                    yy[ok] = propagate.response_uniform(A[ok], z0[ok], h[ok], self._dt, self._t.size)
-                else:
-                    yy[ok] = propagate.response_times(A[ok], z0[ok], h[ok], self._t)
+                z0 = self._lead_state(A, z0)
+            if self.uniform:
+                yy, ok = propagate.response_uniform(
+                    A, z0, h, self._dt, self._t.size, return_valid=True
+                )
+            else:
+                yy, ok = propagate.response_times(A, z0, h, self._t, return_valid=True)
         ok &= np.all(np.isfinite(yy), axis=1)
         yy[~ok] = 0.0
         idx = np.flatnonzero(valid)
@@ -414,7 +456,13 @@ class Forward:
         """
         theta = self._columns(theta)[:1]
         if not self.check(theta)[0]:
-            raise ForwardError(f"parameters outside their admissible range: {theta[0]}")
+            pairs = zip(self.param_names, theta[0], strict=True)
+            values = ", ".join(f"{n}={v:g}" for n, v in pairs)
+            raise ForwardError(
+                f"parameters outside their admissible range ({values}): E, b and a root "
+                "spring must be finite and > 0, damping coefficients and tip mass >= 0, "
+                "stiffness_gradient in (-2, 2)"
+            )
         omega, C, _ = self.modal_system(theta)
         lam = propagate.eigenvalues(propagate.state_matrix(omega, C))[0]
         lam = lam[lam.imag > 1e-9 * np.abs(lam)]
@@ -452,5 +500,12 @@ def modal_properties(
         raise ForwardError(
             f"model {fwd.model.name!r} needs parameters {missing} (SI units); "
             "give them, e.g. --set gamma=0.01"
+        )
+    # A misspelt or foreign name (e.g. c_d for 'viscous') would otherwise be ignored silently.
+    extra = sorted(set(p) - set(fwd.param_names))
+    if extra:
+        raise ForwardError(
+            f"{extra} are not parameters of model {fwd.model.name!r}; it takes "
+            f"{list(fwd.model.physical_params)} (SI units)"
         )
     return fwd.modes(p)

@@ -5,11 +5,19 @@ Sampled parameters (columns of ``U``, each through its prior's transform, see
 
 * the forward model's physical parameters (:mod:`bayesbeam.models`), except that
   spatial hysteresis is sampled as ``(eta, b)`` instead of ``(a, b)``:
-  ``eta = a (1 - exp(-k1² b²/2)) / k1²`` [N s m²], ``k1 = 1.8751/L``. For a narrow
-  kernel ``eta → a b²/2``, the only combination the data identify (physics.md §2; it
-  equals ``c_d I`` of the equivalent Kelvin–Voigt law), and for a wide kernel
-  ``eta → a/k1²``. Sampling ``eta`` keeps the posterior off the (a, b) ridge; ``a`` is
-  reported as a derived quantity so the ridge stays visible in the corner plot;
+  ``eta = a s1(b)`` [N s m²], where ``s1(b) = φ1ᵀ S(b) φ1 / (φ1ᵀ KV φ1 / I)`` is the
+  first clamped-beam mode's hysteresis damping per unit ``a`` divided by its
+  Kelvin–Voigt damping per unit ``c_d I`` (``I = beam.I``, φ1 the first mode of the
+  nominal FE beam, rigid clamp). So ``eta`` is the ``c_d I`` of the Kelvin–Voigt law
+  that gives the first mode the same damping, i.e. the hysteresis part of the
+  first-mode damping ratio is ``eta ω1 / (2 E I)`` for every ``b``: the quantity the
+  data identify best. For a narrow kernel ``eta → a b²/2`` (physics.md §2; only this
+  product is identified), for a kernel much wider than the beam ``eta ∝ a/b``.
+  The long-beam formula ``a (1 - exp(-k1² b²/2)) / k1²`` used before is wrong on a
+  cantilever by a boundary layer of relative size ≈ 3 b/L (10 % at b = 1 cm on a
+  0.3 m beam) and by a factor ~40 for b ≈ 3 L; its ridge in (eta, b) was curved
+  enough that the sampler missed the narrow-kernel tail of the posterior. ``a`` is
+  reported as a derived quantity so the (a, b) ridge stays visible in the corner plot;
 * the initial-condition amplitudes (``w0`` for a release);
 * ``sigma`` (noise sd, SI units of the signal), and ``rho`` (AR(1) correlation) or
   ``offset`` (constant sensor offset) when the model has ``ar1_noise`` /
@@ -139,7 +147,7 @@ def default_priors(
     E                         LogUniform(E_ref/4, 4 E_ref)
     gamma                     LogUniform: ζ1 = gamma/(2 rhoA w1) in [1e-6, 0.2]
     c_d                       LogUniform: ζ1 = c_d w1/(2 E_ref) in [1e-6, 0.2]
-    eta (SH strength)         LogUniform: same range as c_d·I
+    eta (SH strength)         LogUniform: SH part of ζ1 = eta w1/(2 E_ref I) in [1e-6, 0.2]
     b                         LogUniform(1e-3 L, 3 L)
     tip_mass                  LogUniform(1e-3, 0.5) × beam mass
     root_spring               LogUniform: κ = k L/(E_ref I) in [1, 1e4]
@@ -168,8 +176,8 @@ def default_priors(
     beam = trial.beam
     if E_ref is None:
         E_ref = beam.E if beam.E is not None else reference_modulus(trial, n_elements=n_elements)
-    L, I, rhoA = beam.length, beam.I, beam.rhoA
-    w1 = BETA1**2 * np.sqrt(E_ref * I / (rhoA * L**4))
+    L, inertia, rhoA = beam.length, beam.I, beam.rhoA
+    w1 = BETA1**2 * np.sqrt(E_ref * inertia / (rhoA * L**4))
     zlo, zhi = ZETA_RANGE
     sd_y = float(np.std(trial.values))
     # Displacement scale of the signal: divide by ω1 per time derivative.
@@ -185,13 +193,13 @@ def default_priors(
         elif n == "c_d":
             out[n] = LogUniform(2 * E_ref * zlo / w1, 2 * E_ref * zhi / w1)
         elif n == "eta":
-            out[n] = LogUniform(2 * E_ref * I * zlo / w1, 2 * E_ref * I * zhi / w1)
+            out[n] = LogUniform(2 * E_ref * inertia * zlo / w1, 2 * E_ref * inertia * zhi / w1)
         elif n == "b":
             out[n] = LogUniform(1e-3 * L, 3 * L)
         elif n == "tip_mass":
             out[n] = LogUniform(1e-3 * beam.beam_mass, 0.5 * beam.beam_mass)
         elif n == "root_spring":
-            out[n] = LogUniform(E_ref * I / L, 1e4 * E_ref * I / L)
+            out[n] = LogUniform(E_ref * inertia / L, 1e4 * E_ref * inertia / L)
         elif n == "stiffness_gradient":
             out[n] = Uniform(-1.0, 1.0)
         elif n in ("w0",) or n.startswith(("A", "B")):
@@ -209,6 +217,24 @@ def default_priors(
         else:  # pragma: no cover - every name of models.py is handled above
             raise ValueError(f"no default prior for parameter {n!r}")
     return PriorSet(out)
+
+
+class _EtaReference:
+    """``s1(b)`` of the module docstring for one beam and mesh (``eta = a s1(b)``)."""
+
+    def __init__(self, beam: Any, n_elements: int) -> None:
+        from bayesbeam.hysteresis import HysteresisOperator
+
+        # Nominal beam on a rigid clamp: a fixed reference shape, so the map (eta, b) <->
+        # (a, b) does not depend on other sampled parameters (E, tip mass, root spring).
+        fe = assemble(beam, n_elements, root_dof=False)
+        _, phi = sla.eigh(fe.K, fe.M, subset_by_index=[0, 0])
+        self.phi1 = np.ascontiguousarray(phi[:, :1])
+        self.op = HysteresisOperator(fe.nodes, False)
+        self.kv1 = float(phi[:, 0] @ fe.KV @ phi[:, 0]) / beam.I
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        return self.op.projected(b, self.phi1)[:, 0, 0] / self.kv1
 
 
 @dataclass(frozen=True)
@@ -286,7 +312,7 @@ class Problem:
             rho=idx.get("rho"),
             offset=idx.get("offset"),
         )
-        self._k1 = BETA1 / trial.beam.length
+        self._eta_ref = _EtaReference(trial.beam, n_elements) if self._lay.eta is not None else None
         self.data = np.asarray(trial.values, dtype=float)
         self.n_calls = 0
 
@@ -318,10 +344,37 @@ class Problem:
         if self._lay.eta is not None:
             j = self.forward.param_names.index("a")
             b = X[:, self._lay.b]
-            x = 0.5 * (self._k1 * b) ** 2
-            # a = eta k1² / (1 - exp(-k1² b²/2)); -expm1 keeps it exact for narrow kernels.
-            P[:, j] = X[:, self._lay.eta] * self._k1**2 / (-np.expm1(-x))
+            ok = np.isfinite(b) & (b > 0)
+            s1 = np.ones_like(b)
+            if np.any(ok):
+                s1[ok] = self.eta_per_a(b[ok])
+            # b <= 0 is invalid in the forward model anyway; a = 0 keeps the row finite.
+            P[:, j] = np.where(ok, X[:, self._lay.eta] / s1, 0.0)
         return P
+
+    def eta_per_a(self, b: np.ndarray) -> np.ndarray:
+        """Ratio ``eta / a = s1(b)`` of the spatial-hysteresis parameterisation (m²).
+
+        See the module docstring: ``s1(b) = φ1ᵀ S(b) φ1 / (φ1ᵀ KV φ1 / I)``; it tends
+        to ``b²/2`` for a narrow kernel.
+
+        Parameters
+        ----------
+        b : array_like, shape (k,)
+            Kernel widths in m, each > 0.
+
+        Returns
+        -------
+        ndarray, shape (k,)
+
+        Raises
+        ------
+        ValueError
+            If the model has no spatial hysteresis.
+        """
+        if self._eta_ref is None:
+            raise ValueError(f"model {self.model.name!r} has no spatial hysteresis (sh)")
+        return self._eta_ref(np.atleast_1d(np.asarray(b, dtype=float)))
 
     def derived(self, X: np.ndarray) -> dict[str, np.ndarray]:
         """Quantities reported besides the sampled ones (``a`` for spatial hysteresis).

@@ -15,14 +15,15 @@ acceleration ``[-s_q Ω, -s_q C]`` with ``s_q = N(x_s) Φ``).
 There is no time-stepping error; everything is exact up to rounding.
 
 * :func:`expm_batched` — scaling and squaring with a truncated Taylor series evaluated by
-  Paterson–Stockmeyer. Per matrix, the degree m ∈ {8, ..., 28} and the number of
+  Paterson–Stockmeyer. Per matrix, the degree m ∈ {8, ..., 24} and the number of
   squarings s are chosen from the norms of A³ and A⁴ (Al-Mohy & Higham, SIAM J. Matrix
   Anal. Appl. 31 (2009) 970, Thm 4.2) so that the truncation has a relative backward error
-  ≤ u = 2^-53 (θ_m: Higham, *Functions of Matrices* (2008) Table A.3), at the fewest matrix
-  products. No LAPACK solve is needed, which matters: numpy's batched ``solve`` costs about
-  eight 64×64 products. Rounding in the squaring phase grows like 2^s u: on the benchmark
-  matrices (‖A dt‖₁ ≈ 5e3, s ≈ 11) the result is within 5e-13 (Frobenius, relative) of an
-  80-bit reference; scipy.linalg.expm (Padé 13, two fewer squarings) is at 2e-13.
+  ≤ u = 2^-53 (θ_m: Higham, *Functions of Matrices* (2008) Table A.3): the lowest degree
+  that needs no squaring, else m = 24. No LAPACK solve is needed, which matters: numpy's
+  batched ``solve`` costs about eight 64×64 products. Rounding in the squaring phase
+  grows like 2^s u: on the benchmark matrices (‖A dt‖₁ ≈ 5e3, s ≈ 11) the result is
+  within ~4e-13 (Frobenius, relative) of an 80-bit reference; scipy.linalg.expm (Padé 13,
+  fewer squarings) is at ~2e-13.
 * :func:`response_uniform` — ``y_k = h · P^k z0`` with ``P = expm(A dt)`` by a
   baby-step/giant-step product: rows ``hᵀ P^b`` (b < 2^κ) by doubling with the squares
   ``P^(2^j)`` (which continue the squaring chain of the exponential), columns
@@ -72,10 +73,11 @@ class PropagationError(ValueError):
 # θ_m: largest ‖2^-s A‖ (in the α_p sense) for which the degree-m Taylor polynomial has a
 # relative backward error ≤ u = 2^-53 (Higham 2008, Table A.3; the same values as
 # scipy.sparse.linalg._expm_multiply._theta).
-_THETA = {8: 5.00e-2, 12: 3.00e-1, 16: 7.81e-1, 20: 1.44, 24: 2.22, 28: 3.08}
+_THETA = {8: 5.00e-2, 12: 3.00e-1, 16: 7.81e-1, 20: 1.44, 24: 2.22}
+_M_MAX = 24
 # Paterson–Stockmeyer block size: powers X², X³, X⁴ are formed once; degree m = 4 r then
-# costs 3 + (r - 1) matrix products. On the benchmark matrices (‖A dt‖₁ ≈ 5e3) the
-# products-plus-squarings optimum is m = 16, 20 or 24 with 10–12 squarings (~20 products).
+# costs 3 + (r - 1) matrix products. Benchmark matrices (‖A dt‖₁ ≈ 5e3): m = 24 and 10–11
+# squarings, 18–19 products in all.
 _Q = 4
 # Refuse matrices whose scaled norm would need more than this many squarings
 # (‖A t‖ > ~1e38): no physical beam gets there and the loop would be pointless.
@@ -83,9 +85,10 @@ _MAX_SQUARINGS = 128
 # Norm above which A is pre-scaled by a power of two before forming its powers: keeps
 # A0^24 < 2^(30·24) and the folded coefficients f^24 > 2^-800 inside double range.
 _PRESCALE_NORM = 2.0**30
-# Matrix elements per numpy chunk: 16 sets of 64×64 (512 KiB per work array) keep the
-# working set of a chunk in one core's L2 cache; whole batches of 64 were ~1.4× slower.
-_CHUNK_ELEMENTS = 16 * 64 * 64
+# Matrix elements per numpy chunk: 8 sets of 64×64 (256 KiB per work array) keep the
+# working set of a chunk in one core's L2 cache; whole batches of 64 were ~1.4× slower,
+# chunks of 16 ~3 % slower.
+_CHUNK_ELEMENTS = 8 * 64 * 64
 # Cancellation factor Σ|a_j| / (|h||z0|) of the modal sum above which response_times does
 # not trust the eigendecomposition (its rounding error is about u times it: ≲ 1e-10).
 _MAX_CANCELLATION = 1e6
@@ -133,9 +136,15 @@ def _check_vec(name: str, v, B: int, s: int) -> np.ndarray:
 
 
 def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
+    """Rows (first axis) whose entries are all finite."""
     ok = np.ones(arrays[0].shape[0], dtype=bool)
     for a in arrays:
-        ok &= np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
+        flat = a.reshape(a.shape[0], -1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            quick = np.isfinite(flat.sum(axis=1))  # one pass; a sum can only overflow...
+        for b in np.flatnonzero(~quick):  # ...so look again where it is not finite
+            quick[b] = np.isfinite(flat[b]).all()
+        ok &= quick
     return ok
 
 
@@ -209,7 +218,7 @@ def state_matrix(omega, C, *, check: bool = True) -> np.ndarray:
 
 
 def _chunk_size(s: int) -> int:
-    """Return the number of sets per numpy batch: ~512 KiB per (B, s, s) array (16 at s = 64)."""
+    """Return the number of sets per numpy batch: ~256 KiB per (B, s, s) array (8 at s = 64)."""
     return int(min(256, max(1, _CHUNK_ELEMENTS // max(1, s * s))))
 
 
@@ -290,22 +299,18 @@ def _expm_chain_impl(A: np.ndarray, extra: int, scale: float):
     alpha = np.maximum(_norm1(pw[:, 2], blk) ** (1 / 3), _norm1(pw[:, 3], blk) ** (1 / 4))
     valid &= np.isfinite(alpha)
     alpha[~valid] = 0.0
-    # Per matrix, the degree m (8 ≤ m ≤ 28) and squarings s minimising the number of
-    # products (m/4 - 1 Horner steps + s), ties to the higher degree (fewer squarings: the
-    # rounding error of squaring grows like 2^s u). Choosing per matrix, not per batch,
-    # makes each set's result independent of the other sets in the batch.
-    m_b = np.zeros(B, dtype=np.int64)
-    s_tot = np.zeros(B, dtype=np.int64)
-    best = np.full(B, np.iinfo(np.int64).max)
-    for m, theta in _THETA.items():
-        with np.errstate(divide="ignore"):
-            s2 = np.where(alpha > 0, np.ceil(np.log2(alpha / theta)), -np.inf)
-        s_m = np.clip(s0 + s2, 0, None).astype(np.int64)
-        cost = (m // _Q - 1) + s_m
-        better = cost <= best
-        best = np.where(better, cost, best)
-        m_b = np.where(better, m, m_b)
-        s_tot = np.where(better, s_m, s_tot)
+    # Degree and squarings per matrix (so each set's result is independent of the batch):
+    # the lowest degree m ≤ 24 with α ≤ θ_m if one suffices without squaring, otherwise
+    # m = 24 and s = ceil(log2(α/θ_24)). Per product, m = 16 would be ~0.5 cheaper on
+    # average, but a single degree for all stiff sets keeps the batched Horner loop free
+    # of idle steps, and θ_24 = 2.8 θ_16 means 1.5 fewer squarings: their rounding error
+    # grows like 2^s u.
+    with np.errstate(divide="ignore"):
+        s_tot = np.where(alpha > 0, np.ceil(np.log2(alpha / _THETA[_M_MAX])), 0.0)
+    s_tot = np.clip(s0 + s_tot, 0, None).astype(np.int64)
+    m_b = np.full(B, _M_MAX, dtype=np.int64)
+    for m in sorted(_THETA, reverse=True):
+        m_b[(s0 == 0) & (alpha <= _THETA[m])] = m
     m_max = int(m_b.max())
     r = m_max // _Q
     # Taylor polynomial of X f (f = 2^(s0 - s)) by Paterson–Stockmeyer in A0⁴:
@@ -398,12 +403,14 @@ def _plan(n: int) -> int:
 
     There are then 2^κ baby steps and ceil(n / 2^κ) giant steps.
 
-    Cost model in units of one batched 64×64 product, measured on the development machine
-    (one squaring 1, one batched mat-vec ~0.1, a doubling step with r rows ~0.1 + 0.02 r).
+    Cost model in units of one 64×64 product (~8 µs), measured on the development machine:
+    a squaring 1, a giant-step mat-vec 0.085, a doubling step with r rows 0.15 + 0.02 r.
+    For n = 1280 it picks κ = 5 (32 baby steps, 40 giant steps).
     """
     best_k, best_cost = 0, math.inf
     for k in range(0, max(1, math.ceil(math.log2(max(n, 1)))) + 1):
-        cost = k + 0.1 * (math.ceil(n / 2**k) - 1) + sum(0.1 + 0.02 * 2**j for j in range(k))
+        giant = 0.085 * (math.ceil(n / 2**k) - 1)
+        cost = k + giant + sum(0.15 + 0.02 * 2**j for j in range(k))
         if cost < best_cost:
             best_k, best_cost = k, cost
     return best_k
@@ -538,9 +545,10 @@ def response_uniform(
     if B == 0 or n == 0 or s == 0:
         y = np.zeros((B, n))
         return (y, ok) if return_valid else y
-    A = np.where(ok[:, None, None], A, 0.0)
-    z0 = np.where(ok[:, None], z0, 0.0)
-    h = np.where(ok[:, None], h, 0.0)
+    if not ok.all():  # compute the bad sets harmlessly (zeros); they are masked below
+        A = np.where(ok[:, None, None], A, 0.0)
+        z0 = np.where(ok[:, None], z0, 0.0)
+        h = np.where(ok[:, None], h, 0.0)
     use = _pick_backend(backend)
     if threads is None:
         threads = _default_threads()
@@ -834,18 +842,14 @@ def _uniform_kernel_py(A, z0, h, dt, n, k, theta, degrees, inv_fact, prescale, m
         alpha = max(n3 ** (1.0 / 3.0), n4**0.25)
         if not np.isfinite(alpha):
             continue
-        m = degrees[0]
+        m = degrees[degrees.size - 1]
         sq = 0
-        best = 1 << 30
-        for d in range(degrees.size):
-            s_m = 0
-            if alpha > 0.0:
-                s_m = max(0, s0 + int(math.ceil(math.log2(alpha / theta[d]))))
-            cost = degrees[d] // 4 - 1 + s_m
-            if cost <= best:
-                best = cost
-                m = degrees[d]
-                sq = s_m
+        if alpha > 0.0:
+            sq = max(0, s0 + int(math.ceil(math.log2(alpha / theta[degrees.size - 1]))))
+        if s0 == 0:
+            for d in range(degrees.size - 1, -1, -1):
+                if alpha <= theta[d]:
+                    m = degrees[d]
         r = m // 4
         f = 2.0 ** (s0 - sq)
         coef = np.empty(m + 1)

@@ -94,7 +94,7 @@ def simulate_trial(
     noise_sd : float
         Standard deviation of added white Gaussian noise, SI units of the quantity.
     seed : int or None
-        Seed of the noise generator.
+        Seed of the noise generator (same seed, same noise).
     n_elements : int
     name : str
     out : path, optional
@@ -103,6 +103,8 @@ def simulate_trial(
     Returns
     -------
     Trial
+        Its ``meta["synthetic"]`` (written to the file's ``[meta.synthetic]`` table) records
+        the generator: model, true ``params`` (SI), ``noise_sd``, ``n_elements`` and ``seed``.
     """
     if not isinstance(beam, Beam):
         beam = Beam.from_toml(beam)
@@ -119,16 +121,26 @@ def simulate_trial(
     y = simulate_signal(beam, model, p, times, n_elements=n_elements)
     rng = np.random.default_rng(seed)
     y = y + noise_sd * rng.standard_normal(n)
+    truth = {
+        "generator": "bayesbeam.simulate",
+        "model": parse_model(model).name,
+        "params": {k: float(v) for k, v in params.items()},
+        "noise_sd": float(noise_sd),
+        "n_elements": int(n_elements),
+    }
+    if seed is not None:  # TOML has no null
+        truth["seed"] = int(seed)
     trial = Trial(
         times=times,
         values=y,
         quantity=beam.quantity,
         beam=beam,
         name=name,
-        source={"generator": "bayesbeam.simulate", "model": parse_model(model).name,
-                "params": {k: float(v) for k, v in params.items()},
-                "noise_sd": float(noise_sd), "seed": seed, "n_elements": n_elements},
+        source={**truth, "seed": seed},
         initial={"tip_deflection": float(tip_deflection)},
+        # write_trial keeps [meta] but not `source`: the true parameters must survive the
+        # round trip through the file (recovery studies compare fits against them).
+        meta={"synthetic": truth},
     )
     if out is not None:
         write_trial(trial, out)
