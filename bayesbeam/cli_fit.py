@@ -173,18 +173,22 @@ def _check_resume(outdir: Path, record: dict[str, Any]) -> None:
         )
 
 
-def _truths(trial: Any, result: Any) -> list[float | None] | None:
+def _truths(trial: Any, problem: Any) -> list[float | None] | None:
     """Return the true values of a synthetic trial (bayesbeam.simulate), for the corner plot."""
-    src = trial.source
-    params = src.get("params")
-    if src.get("generator") != "bayesbeam.simulate" or not isinstance(params, dict):
+    syn = trial.meta.get("synthetic") or trial.source
+    params = syn.get("params") if isinstance(syn, dict) else None
+    if syn.get("generator") != "bayesbeam.simulate" or not isinstance(params, dict):
         return None
-    known = dict(params)
+    known = {k: float(v) for k, v in params.items()}
     if "tip_deflection" in trial.initial:
-        known.setdefault("w0", trial.initial["tip_deflection"])
-    if "noise_sd" in src:
-        known.setdefault("sigma", src["noise_sd"])
-    out = [float(known[n]) if n in known else None for n in result.names]
+        known.setdefault("w0", float(trial.initial["tip_deflection"]))
+    if "noise_sd" in syn and float(syn["noise_sd"]) > 0:
+        known.setdefault("sigma", float(syn["noise_sd"]))
+    if "E" not in known and trial.beam.E is not None:
+        known["E"] = float(trial.beam.E)
+    if "eta" in problem.names and "a" in known and "b" in known:
+        known["eta"] = known["a"] * float(problem.eta_per_a([known["b"]])[0])
+    out = [known.get(n) for n in problem.names]
     return out if any(v is not None for v in out) else None
 
 
@@ -307,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
     (outdir / "summary.json").write_text(
         json.dumps(payload, indent=2, allow_nan=False) + "\n", encoding="utf-8"
     )
-    result.plot_corner(outdir / "corner.png", truths=_truths(trial, result))
+    result.plot_corner(outdir / "corner.png", truths=_truths(trial, problem))
     result.plot_trace(outdir / "trace.png")
     draws = posterior_predictive(problem, result, PPC_DRAWS, rng)
     plot_fit(trial, problem, result, outdir / "fit.png", rng=rng, draws=draws)

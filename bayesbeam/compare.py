@@ -59,7 +59,17 @@ where the support of ``p'`` lies inside that of ``p`` (a narrowed prior) and the
 posterior samples are numerous enough inside the new support; when too few are, no
 number is returned. For a widened prior the region beyond the old bounds is not
 sampled, so the estimate is a lower bound whenever the posterior reaches the old
-bound (it is then flagged), and exact otherwise.
+bound (it is then flagged), and exact otherwise. Models outside the tie band that
+tie with (or beat) the best one under such a change are listed in
+:attr:`Comparison.prior_dependent` and named in the verdict: their lower rank is an
+Occam factor of a prior width, not something the data decided. A typical case is
+spatial hysteresis with a narrow kernel against Kelvin–Voigt (physics.md §2): the
+fits are identical and the evidence differs only by the fraction of b's prior the
+data cannot exclude.
+
+Posterior model probabilities ``P_k = π_k Z_k / Σ_j π_j Z_j`` (prior odds ``π``,
+equal by default) carry first-order errors from the evidence errors,
+``sd(P_k)² = Σ_j P_k² (δ_kj - P_j)² err_j²``.
 """
 
 from __future__ import annotations
@@ -191,8 +201,8 @@ class ModelScore:
         Bridge-sampling log evidence ``log_z`` ± ``log_z_err`` (nats); NaN if the
         estimator failed (see ``notes``).
     laplace_log_z : float
-        Laplace approximation of the log evidence at the MAP (nats), NaN when not
-        applicable.
+        Laplace approximation of the log evidence (nats) at the MAP, or at the
+        highest-posterior sample if that lies higher; NaN when not applicable.
     loo : LOO
         PSIS-LOO (``elpd_loo``, ``se``, ``pareto_k``; nats).
     waic : WAIC
@@ -393,12 +403,24 @@ def evaluate(
         except EvidenceError as err:
             notes.append(f"bridge sampling failed: {err}")
             ev = Evidence(math.nan, math.nan, f"bridge-{proposal}", 0, converged=False)
-        laplace = math.nan
+        # Laplace at the best point known: the MAP, or a sample above it when the
+        # optimiser stopped short (the Newton step in laplace_evidence does the rest).
+        i_best = int(np.argmax(chain.flat_log_prob))
+        u_lap, lp_lap = chain.flat_samples[i_best], float(chain.flat_log_prob[i_best])
         if result.map_u is not None:
-            try:
-                laplace = laplace_evidence(problem.log_prob, np.asarray(result.map_u)).log_z
-            except EvidenceError as err:  # includes HessianNotNegativeDefiniteError
-                notes.append(f"Laplace evidence not available: {err}")
+            lp_map = float(problem.log_prob(np.asarray(result.map_u)[None])[0])
+            if lp_map >= lp_lap:
+                u_lap, lp_lap = np.asarray(result.map_u), lp_map
+            elif lp_lap - lp_map > 0.5:
+                notes.append(
+                    f"a posterior sample has log_prob {lp_lap - lp_map:.2f} above the MAP "
+                    "estimate: the MAP search stopped short (Laplace uses that sample)"
+                )
+        laplace = math.nan
+        try:
+            laplace = laplace_evidence(problem.log_prob, u_lap).log_z
+        except EvidenceError as err:  # includes HessianNotNegativeDefiniteError
+            notes.append(f"Laplace evidence not available: {err}")
         # Pointwise log-likelihood at thinned draws (walkers as chains for ArviZ).
         thin = thin_result(result, n_loo_draws).chain.samples
         n_s, n_w, d = thin.shape
@@ -831,6 +853,9 @@ class Comparison:
         (:func:`bayesbeam.criteria.elpd_difference`), nats.
     sensitivity : tuple of SensitivityRow
         The ranking under halved and doubled priors of the non-shared parameters.
+    prior_dependent : tuple of str
+        Models outside :attr:`indistinguishable` that become tied for best (or best)
+        under one of those prior changes: their lower rank hinges on a prior width.
     verdict : str
         One-line summary.
     """
@@ -850,6 +875,7 @@ class Comparison:
     delta_elpd: tuple[float, ...]
     delta_elpd_se: tuple[float, ...]
     sensitivity: tuple[SensitivityRow, ...]
+    prior_dependent: tuple[str, ...]
     verdict: str
 
     @property
@@ -909,7 +935,8 @@ class Comparison:
             under the prior odds given, ``probability_equal_odds`` under equal odds;
             more keys are listed in :meth:`_rows`); ``best``; ``indistinguishable``
             (models tied with the best, the best included); ``threshold``;
-            ``verdict``; ``best_elpd``; ``prior_sensitivity`` (one entry per scaled
+            ``verdict``; ``best_elpd``; ``prior_dependent`` (models whose lower rank
+            hinges on a prior width); ``prior_sensitivity`` (one entry per scaled
             prior group and factor).
         """
         return _finite_or_none({
@@ -920,6 +947,7 @@ class Comparison:
             "tie_rule": "|dlogZ| <= max(2*sqrt(err_best^2 + err^2), threshold)",
             "verdict": self.verdict,
             "best_elpd": self.best_elpd,
+            "prior_dependent": list(self.prior_dependent),
             "prior_sensitivity": [r.to_dict(self.names) for r in self.sensitivity],
         })
 
@@ -929,7 +957,8 @@ class Comparison:
         body = []
         for i, s in enumerate(self.scores):
             body.append([
-                s.name + (" *" if s.name in self.indistinguishable else ""),
+                s.name + (" *" if s.name in self.indistinguishable
+                          else " ~" if s.name in self.prior_dependent else ""),
                 str(s.n_params),
                 _fmt(s.max_loglik, ".1f"),
                 _pm(s.log_evidence, s.log_evidence_err),
@@ -976,7 +1005,9 @@ class Comparison:
                                  for j, c in enumerate(r)))
         out.append(
             f"* tied for best: |Δ log Z| <= max(2 sqrt(err_best² + err²), {self.threshold:g} nat)"
-            " (Kass & Raftery 1995). P(M|D) from the evidences"
+            " (Kass & Raftery 1995)" + ("; ~ tied under a halved/doubled prior width"
+                                        if self.prior_dependent else "")
+            + ". P(M|D) from the evidences"
             + (" and the given prior odds" if len(set(self.prior_probabilities)) > 1
                else " with equal prior odds") + "; ± from the evidence errors."
         )
@@ -1157,7 +1188,10 @@ def compare_scores(
         d_elpd.append(d)
         d_se.append(se)
     sens = _sensitivity(scores, sensitivity_factors, thr, tied)
-    verdict = _verdict(names, lz, best, tied, delta, derr, sens, scores)
+    dependent: list[str] = []
+    for r in sens:
+        dependent += [n for n in r.indistinguishable if n not in tied and n not in dependent]
+    verdict = _verdict(names, lz, best, tied, delta, derr, dependent, scores)
     return Comparison(
         scores=scores, best=best, indistinguishable=tied, threshold=thr,
         prior_probabilities=tuple(map(float, prior)),
@@ -1165,21 +1199,22 @@ def compare_scores(
         probability=tuple(map(float, p)), probability_err=tuple(map(float, p_sd)),
         probability_equal=tuple(map(float, p0)), probability_equal_err=tuple(map(float, p0_sd)),
         best_elpd=names[ib], delta_elpd=tuple(d_elpd), delta_elpd_se=tuple(d_se),
-        sensitivity=sens, verdict=verdict,
+        sensitivity=sens, prior_dependent=tuple(dependent), verdict=verdict,
     )
 
 
 def _verdict(
     names: Sequence[str], lz: np.ndarray, best: str | None, tied: tuple[str, ...],
-    delta: np.ndarray, derr: np.ndarray, sens: Sequence[SensitivityRow],
+    delta: np.ndarray, derr: np.ndarray, dependent: Sequence[str],
     scores: Sequence[ModelScore],
 ) -> str:
     if best is None:
         return "Verdict: no evidence could be computed; no ranking (see the notes)."
     unranked = [n for n, z in zip(names, lz, strict=True) if not math.isfinite(z)]
     tail = f" Not ranked (evidence failed): {', '.join(unranked)}." if unranked else ""
-    if any(r.verdict_changed for r in sens):
-        tail += " The verdict depends on the prior widths (see prior sensitivity)."
+    if dependent:
+        tail += (f" Prior-dependent: {', '.join(dependent)} would tie for best under a "
+                 "halved or doubled prior width (see prior sensitivity).")
     if any(not s.result.chain.converged for s in scores):
         tail += " Some chains did not converge (see notes)."
     if len(names) == 1:

@@ -102,8 +102,9 @@ SIGNIFICANCE = 3.0
 SCREEN_THRESHOLD = 2.0
 #: Candidates within this many nats of the best screen value are confirmed too.
 SCREEN_TIE = 3.0
-#: Smallest evidence band (nats) within which candidates count as equivalent.
-TIE = 1.0
+#: Candidates are separated only when one's evidence beats the other's by more than
+#: max(2 err, TIE) nats: the same strength (Bayes factor > 20) that significance needs.
+TIE = 3.0
 
 
 class DiagnoseError(ValueError):
@@ -581,11 +582,23 @@ class _Engine:
             return -v, -np.where(np.isfinite(g), g, 0.0)
 
         for u0 in U:
-            res = sopt.minimize(negf, u0, jac=True, method="L-BFGS-B", bounds=bounds,
-                                options={"maxiter": 300})
-            v = float(pb.log_prob(res.x[None])[0])
+            u, v = u0, -math.inf
+            for _ in range(4):
+                # Restarting L-BFGS-B resets its curvature memory; on these narrow,
+                # curved ridges a restart often gains several nats (up to 4 passes).
+                res = sopt.minimize(negf, u, jac=True, method="L-BFGS-B", bounds=bounds,
+                                    options={"maxiter": 300})
+                v_new = float(pb.log_prob(res.x[None])[0])
+                if not v_new > v + 1e-3:
+                    v = max(v, v_new)
+                    if v_new >= v:
+                        u = res.x
+                    break
+                u, v = res.x, v_new
             if v > st.lp:
-                st.u, st.lp = np.asarray(res.x, dtype=float), v
+                st.u, st.lp = np.asarray(u, dtype=float), v
+        if st.u is not None and np.isfinite(st.lp):
+            st.u, st.lp = _newton_polish(pb.log_prob, st.u, st.lp, bounds)
         if st.u is None or not np.isfinite(st.lp):
             raise DiagnoseError(f"no start of model {pb.model.name!r} has a finite posterior "
                                 "density; check the trial's units and the priors")
@@ -634,8 +647,16 @@ class _Engine:
                 th = np.repeat(_fwd_row(pb, lin, v)[None], grid.size, axis=0)
                 th[:, lin.param_names.index(s)] = grid
                 om, _, _ = lin.modal_system(th)
-                ratio = om[:, 1] / om[:, 0]
-                v[s] = float(grid[int(np.argmin(np.abs(ratio - target)))])
+                miss = om[:, 1] / om[:, 0] - target
+                i = int(np.argmin(np.abs(miss)))
+                # Refine between the bracketing grid points: 1e-3 of f2/f1 is already a
+                # phase error of ~0.1 cycle per second at f2 ~ 60 Hz.
+                j = i + 1 if i + 1 < grid.size and miss[i] * miss[i + 1] < 0 else i - 1
+                if 0 <= j < grid.size and miss[i] * miss[j] < 0:
+                    v[s] = _root_on_ratio(pb, lin, v, s, grid_u[min(i, j)], grid_u[max(i, j)],
+                                          target)
+                else:
+                    v[s] = float(grid[i])
                 variants.append(v)
         rows = []
         for v in variants:
@@ -676,6 +697,63 @@ class _Engine:
         return st.sig
 
 
+def _fd_hessian(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
+                h: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Central-difference value, gradient and Hessian of a vectorised function (one call)."""
+    d = u.size
+    E = np.diag(h)
+    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
+    pts = [u[None], u + E, u - E]
+    pts += [np.array([u + si * E[i] + sj * E[j] for i, j in pairs]).reshape(-1, d)
+            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
+    v = f(np.vstack(pts))
+    f0, fp, fm = v[0], v[1 : d + 1], v[d + 1 : 2 * d + 1]
+    g = (fp - fm) / (2 * h)
+    H = np.diag((fp - 2 * f0 + fm) / h**2)
+    p = len(pairs)
+    q = v[2 * d + 1 :].reshape(4, p) if p else np.zeros((4, 0))
+    for k, (i, j) in enumerate(pairs):
+        H[i, j] = H[j, i] = (q[0, k] - q[1, k] - q[2, k] + q[3, k]) / (4 * h[i] * h[j])
+    return float(f0), g, H
+
+
+def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,
+                   bounds: Sequence[tuple[float | None, float | None]],
+                   iters: int = 6) -> tuple[np.ndarray, float]:
+    """Damped Newton steps with a finite-difference Hessian from a near-optimal point.
+
+    L-BFGS-B crawls along the narrow curved ridges of these posteriors (curvatures
+    spanning 1e3-1e10 in u) and can stop a few nats short; two or three Newton steps
+    with steps of 0.2 conditional sd finish the job. Each step is one vectorised call.
+    """
+    lo = np.array([-np.inf if b[0] is None else b[0] for b in bounds])
+    hi = np.array([np.inf if b[1] is None else b[1] for b in bounds])
+    h = 1e-4 * np.maximum(1.0, np.abs(u))
+    for _ in range(iters):
+        with np.errstate(all="ignore"):
+            _, g, H = _fd_hessian(f, u, h)
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+            break
+        curv = -np.diag(H)
+        h = np.where(curv > 0, 0.2 / np.sqrt(np.abs(curv)), h)
+        w, V = np.linalg.eigh(-0.5 * (H + H.T))
+        # Levenberg shift keeps the step an ascent direction where -H is not PD.
+        w = np.maximum(w, 1e-8 * max(float(np.max(np.abs(w))), 1e-300))
+        step = V @ ((V.T @ g) / w)
+        moved = False
+        for _ in range(12):
+            un = np.clip(u + step, lo, hi)
+            vn = float(f(un[None])[0])
+            if np.isfinite(vn) and vn > v:
+                moved = vn > v + 1e-4
+                u, v = un, vn
+                break
+            step = 0.5 * step
+        if not moved:
+            break
+    return u, v
+
+
 def _neutral(pb: Any, name: str) -> float:
     """Return a value at which an extension's parameter does (almost) nothing."""
     lo, hi = pb.priors[name].bounds
@@ -712,6 +790,22 @@ def _fwd_row(pb: Any, lin: Any, v: Mapping[str, float]) -> np.ndarray:
     P = pb.forward_params(X)[0]
     vals = dict(zip(pb.forward.param_names, P, strict=True))
     return np.array([vals[n] for n in lin.param_names], dtype=float)
+
+
+def _root_on_ratio(pb: Any, lin: Any, v: Mapping[str, float], name: str, u_lo: float,
+                   u_hi: float, target: float) -> float:
+    """Value of structural parameter ``name`` at which ω2/ω1 equals ``target`` (bisection in u)."""
+    prior = pb.priors[name]
+    j = lin.param_names.index(name)
+    row = _fwd_row(pb, lin, v)
+
+    def miss(u: float) -> float:
+        th = row.copy()
+        th[j] = float(prior.from_u(u))
+        om, _, _ = lin.modal_system(th[None])
+        return float(om[0, 1] / om[0, 0] - target)
+
+    return float(prior.from_u(sopt.brentq(miss, u_lo, u_hi, xtol=1e-10, maxiter=60)))
 
 
 def _set_damping(pb: Any, lin: Any, v: dict[str, float], feats: Mapping[str, float]) -> None:

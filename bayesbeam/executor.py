@@ -56,6 +56,7 @@ import math
 import os
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -260,16 +261,36 @@ class TaskOutcome:
 # --------------------------------------------------------------------------- workers
 
 
+_LIMIT_LOCK = threading.Lock()
+_TASK_LOCK = threading.Lock()
+_LIMIT_STATE: dict[str, Any] = {"depth": 0, "controller": None}
+
+
 @contextlib.contextmanager
 def _single_thread() -> Iterator[None]:
-    """Limit BLAS/OpenMP pools to one thread (threadpoolctl), if it is installed."""
+    """Limit BLAS/OpenMP pools to one thread (threadpoolctl), if it is installed.
+
+    The limit is process-wide; with tasks in several threads of one process (a Dask
+    worker with threads) the first task to enter sets it and the last to leave
+    restores the original sizes.
+    """
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # optional: results stay correct, only oversubscription risk
         yield
         return
-    with threadpool_limits(limits=1):
+    with _LIMIT_LOCK:
+        if _LIMIT_STATE["depth"] == 0:
+            _LIMIT_STATE["controller"] = threadpool_limits(limits=1)
+        _LIMIT_STATE["depth"] += 1
+    try:
         yield
+    finally:
+        with _LIMIT_LOCK:
+            _LIMIT_STATE["depth"] -= 1
+            if _LIMIT_STATE["depth"] == 0:
+                _LIMIT_STATE["controller"].restore_original_limits()
+                _LIMIT_STATE["controller"] = None
 
 
 def _jsonable(obj: Any) -> Any:
@@ -304,7 +325,7 @@ def _dump(path: Path, obj: Any) -> None:
     path.write_text(text + "\n", encoding="utf-8")
 
 
-def _compute(task: FitTask, folder: Path) -> dict[str, Any]:
+def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any]:
     """Fit, score and (optionally) plot one task into ``folder``; return score.json."""
     import numpy as np
 
@@ -346,6 +367,9 @@ def _compute(task: FitTask, folder: Path) -> dict[str, Any]:
     )
     if s.get("plots"):
         record["figures"] = _plots(trial, problem, score, folder, s)
+    # Timing of the whole task (fit, evidence, criteria, plots) in this worker.
+    record["task_seconds"] = time.perf_counter() - t0
+    record["task_cpu_seconds"] = time.process_time() - c0
     _dump(folder / "score.json", record)
     _dump(folder / "task.json", task.to_dict())
     return record
@@ -391,10 +415,20 @@ def run_fit_task(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float
     seconds : float
         Wall-clock time of the task.
     """
+    # One task at a time per process: the warning filters that evaluate() uses to record
+    # the sampler's warnings and the BLAS thread limit are process-wide, so tasks in
+    # threads of one process (a threaded Dask worker) must not overlap. Parallelism comes
+    # from processes (a process pool, or Dask workers with one thread each).
+    with _TASK_LOCK:
+        return _run_locked(task)
+
+
+def _run_locked(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float]:
     t0 = time.perf_counter()
+    c0 = time.process_time()
     with _single_thread(), tempfile.TemporaryDirectory(prefix="bayesbeam-task-") as tmp:
         folder = Path(tmp)
-        record = _compute(task, folder)
+        record = _compute(task, folder, t0, c0)
         files = {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()
                  and p.name != "chain.h5"}
     return files, record, time.perf_counter() - t0
@@ -479,6 +513,7 @@ def map_tasks(
     *,
     jobs: int | None = 1,
     scheduler: Any = None,
+    executor: cf.Executor | None = None,
     on_done: Callable[[int, Any], None] | None = None,
 ) -> list[Any]:
     """Apply ``fn`` to every item through an executor; results in input order.
@@ -490,7 +525,9 @@ def map_tasks(
     items : sequence
         Its arguments (picklable).
     jobs, scheduler
-        See :func:`make_executor`.
+        See :func:`make_executor` (ignored when ``executor`` is given).
+    executor : concurrent.futures.Executor, optional
+        An executor to use (and leave open), e.g. to share it with other work.
     on_done : callable, optional
         Called as ``on_done(index, result)`` in this process as each item finishes
         (completion order), e.g. to write files or show progress.
@@ -502,7 +539,9 @@ def map_tasks(
     """
     items = list(items)
     out: list[Any] = [None] * len(items)
-    with make_executor(jobs, scheduler) as ex:
+    ctx = (contextlib.nullcontext(executor) if executor is not None
+           else make_executor(jobs, scheduler))
+    with ctx as ex:
         if ex is None:
             for i, item in enumerate(items):
                 out[i] = fn(item)
@@ -553,6 +592,7 @@ def run_fits(
     *,
     jobs: int | None = 1,
     scheduler: Any = None,
+    executor: cf.Executor | None = None,
     force: bool = False,
     progress: bool | Callable[[str], None] = True,
 ) -> list[TaskOutcome]:
@@ -565,6 +605,8 @@ def run_fits(
         Output folder (created).
     jobs, scheduler
         See :func:`make_executor`.
+    executor : concurrent.futures.Executor, optional
+        Use this executor instead (see :func:`map_tasks`).
     force : bool
         Recompute tasks even when a matching cached result exists.
     progress : bool or callable
@@ -621,7 +663,7 @@ def run_fits(
 
     if todo:
         map_tasks(run_fit_task, [tasks[i] for i in todo], jobs=jobs, scheduler=scheduler,
-                  on_done=finished)
+                  executor=executor, on_done=finished)
     return [o for o in outcomes if o is not None]
 
 

@@ -22,7 +22,7 @@ from bayesbeam.fem import FEModel, assemble, static_tip_shape
 from bayesbeam.hysteresis import HysteresisOperator
 from bayesbeam.models import Model, parse_model
 
-__all__ = ["Forward", "ForwardError", "Response", "modal_properties"]
+__all__ = ["Forward", "ForwardError", "Response", "initial_names", "modal_properties"]
 
 # Admissible ranges of the physical parameters (SI); outside them a set is invalid.
 _LOWER = {
@@ -62,7 +62,18 @@ class Response:
     valid: np.ndarray
 
 
-def _initial_names(initial: str) -> tuple[str, ...]:
+def initial_names(initial: str) -> tuple[str, ...]:
+    """Names of the initial-condition parameters of an ``initial`` kind.
+
+    Parameters
+    ----------
+    initial : str
+        'release', 'impulse', 'modes:K' or 'state'.
+
+    Returns
+    -------
+    tuple of str
+    """
     if initial == "release":
         return ("w0",)
     if initial == "impulse":
@@ -82,6 +93,26 @@ def _initial_names(initial: str) -> tuple[str, ...]:
         "'impulse' (tip impulse p0, N s), 'modes:K' (first K modal amplitudes at the sensor, m) "
         "or 'state' (a fixed initial_state=(c0, v0))"
     )
+
+
+def _eigh_batched(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Batched ``eigh`` that loses only the sets LAPACK fails on (finite but absurd scales).
+
+    Returns eigenvalues (B, n), eigenvectors (B, n, n) and a (B,) mask of failed sets, whose
+    results are replaced by those of the identity.
+    """
+    failed = np.zeros(X.shape[0], dtype=bool)
+    try:
+        w, V = np.linalg.eigh(X)
+    except np.linalg.LinAlgError:
+        n = X.shape[1]
+        w, V = np.ones(X.shape[:2]), np.broadcast_to(np.eye(n), X.shape).copy()
+        for k in range(X.shape[0]):
+            try:
+                w[k], V[k] = np.linalg.eigh(X[k])
+            except np.linalg.LinAlgError:
+                failed[k] = True  # flagged invalid by the caller
+    return w, V, failed
 
 
 class Forward:
@@ -145,7 +176,7 @@ class Forward:
         self._dt = float(np.mean(steps))
         self.uniform = bool(np.max(np.abs(steps - self._dt)) <= 1e-9 * self._dt)
         self.initial = initial
-        self._init_names = _initial_names(initial)
+        self._init_names = initial_names(initial)
         root_dof = beam.root_spring is not None or "root_spring" in self.model.structural
         self.fe: FEModel = assemble(beam, n_elements, root_dof=root_dof)
         n = self.fe.M.shape[0]
@@ -270,12 +301,17 @@ class Forward:
         bad = ~(np.isfinite(M).all(axis=(1, 2)) & np.isfinite(K).all(axis=(1, 2)))
         if bad.any():
             M[bad] = fe.M
-            K[bad] = fe.K
-        # Generalised symmetric eigenproblem via Cholesky of M: K̃ = L⁻¹ K L⁻ᵀ.
+            K[bad] = fe.K + fe.K_root  # positive definite with or without a root dof
+        # Generalised symmetric eigenproblem via Cholesky of M (positive definite: the beam's
+        # own M plus a tip mass >= 0): K̃ = L⁻¹ K L⁻ᵀ.
         Lc = np.linalg.cholesky(M)
         Li = np.linalg.inv(Lc)
         Kt = Li @ K @ np.swapaxes(Li, 1, 2)
-        w2, V = np.linalg.eigh(0.5 * (Kt + np.swapaxes(Kt, 1, 2)))
+        Kt = 0.5 * (Kt + np.swapaxes(Kt, 1, 2))
+        bad |= ~np.isfinite(Kt).all(axis=(1, 2))
+        Kt[bad] = np.eye(Kt.shape[1])
+        w2, V, failed = _eigh_batched(Kt)
+        bad |= failed
         phi = np.swapaxes(Li, 1, 2) @ V
         omega = np.sqrt(np.maximum(w2, 0.0))
         omega[bad] = np.nan
@@ -309,7 +345,15 @@ class Forward:
             else:
                 # (B, n, 1) right-hand side: numpy >= 2 reads a (B, n) one as a matrix.
                 rhs = np.broadcast_to(fe.tip[:, None], (B, fe.tip.size, 1))
-                shape = np.linalg.solve(self._last_K, rhs)[..., 0]
+                try:
+                    shape = np.linalg.solve(self._last_K, rhs)[..., 0]
+                except np.linalg.LinAlgError:  # an exactly singular K: only that set is lost
+                    shape = np.full((B, fe.tip.size), np.nan)
+                    for k in range(B):
+                        try:
+                            shape[k] = np.linalg.solve(self._last_K[k], fe.tip)
+                        except np.linalg.LinAlgError:
+                            continue  # stays NaN: flagged invalid by simulate()
                 shape = shape / (shape @ fe.tip)[:, None]
                 c0 = w0 * shape
                 mt = self._get(theta, "tip_mass")
@@ -385,13 +429,14 @@ class Forward:
 
     def _lead_state(self, A: np.ndarray, z0: np.ndarray) -> np.ndarray:
         """Propagate z0 from t0 to the first sample, exactly; NaN rows where that fails."""
+        P = np.full(A.shape, np.nan)
+        fin = np.flatnonzero(np.isfinite(A).all(axis=(1, 2)))
         try:
-            P = propagate.expm_batched(A * self._lead)
+            P[fin] = propagate.expm_batched(A[fin] * self._lead)
         except propagate.PropagationError:
             # Some set overflows (absurd parameters): redo one by one so that only those
             # sets are lost, not the batch.
-            P = np.full(A.shape, np.nan)
-            for k in range(A.shape[0]):
+            for k in fin:
                 try:
                     P[k] = propagate.expm_batched(A[k : k + 1] * self._lead)[0]
                 except propagate.PropagationError:

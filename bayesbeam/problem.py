@@ -38,7 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from bayesbeam.fem import assemble
-from bayesbeam.forward import Forward, Response
+from bayesbeam.forward import Forward, Response, initial_names
 from bayesbeam.likelihood import ar1_loglik, ar1_pointwise, iid_loglik, iid_pointwise
 from bayesbeam.models import Model, parse_model
 from bayesbeam.priors import LogUniform, Normal, Prior, PriorSet, Uniform
@@ -67,7 +67,8 @@ def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5) -
     times, values : ndarray, shape (T,)
         Time stamps (s) and signal.
     f_min : float
-        Lowest frequency considered, Hz.
+        Lowest frequency considered, Hz (at least 3 / record length: the Hann
+        window's main lobe).
 
     Returns
     -------
@@ -81,7 +82,10 @@ def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5) -
     nfft = 8 * int(2 ** np.ceil(np.log2(t.size)))
     spec = np.abs(np.fft.rfft(y * np.hanning(y.size), nfft))
     f = np.fft.rfftfreq(nfft, dt)
-    spec[f < f_min] = 0.0
+    # The Hann window's main lobe is 2/T wide on each side: below ~3/T a constant
+    # offset (e.g. the mean of an acceleration record that starts with a release
+    # spike) leaks into a spurious low "peak" stronger than 10 % of the first mode.
+    spec[f < max(f_min, 3.0 / (t[-1] - t[0]))] = 0.0
     peaks = np.flatnonzero((spec[1:-1] > spec[:-2]) & (spec[1:-1] >= spec[2:])) + 1
     peaks = peaks[spec[peaks] > 0.1 * spec.max()]
     i = int(peaks[0]) if peaks.size else int(np.argmax(spec))
@@ -152,6 +156,7 @@ def default_priors(
     tip_mass                  LogUniform(1e-3, 0.5) × beam mass
     root_spring               LogUniform: κ = k L/(E_ref I) in [1, 1e4]
     stiffness_gradient        Uniform(-1, 1)
+    drag, friction            LogUniform: equivalent ζ1 at the data's amplitude in [1e-5, 0.05]
     w0, p0, A_k, B_k          Uniform(-s, s), s generous (10× the data's scale)
     sigma                     LogUniform(1e-4 σ_y, 2 σ_y), σ_y = sd of the data
     rho                       Uniform(0, 0.995)
@@ -184,7 +189,7 @@ def default_priors(
     order = {"displacement": 0, "velocity": 1, "acceleration": 2}[trial.quantity]
     disp_scale = float(np.max(np.abs(trial.values))) / w1**order
     out: dict[str, Prior] = {}
-    fwd_names = Forward(beam, model, trial.times[:2], n_elements=2, initial=initial).param_names
+    fwd_names = model.physical_params + initial_names(initial)
     for n in _sampled_names(fwd_names, model):
         if n == "E":
             out[n] = LogUniform(E_ref / 4, 4 * E_ref)
@@ -208,6 +213,14 @@ def default_priors(
         elif n == "p0":
             s = max(10 * disp_scale * w1 * beam.beam_mass, 1e-12)
             out[n] = Uniform(-s, s)
+        elif n in ("drag", "friction"):
+            # Equivalent first-mode damping ratio per unit coefficient at the record's
+            # displacement scale (bayesbeam.nonlinear); the prior spans ζ 1e-5 .. 0.05.
+            from bayesbeam.nonlinear import amplitude_damping_scales
+
+            k = dict(zip(("drag", "friction"), amplitude_damping_scales(
+                beam, E_ref, max(disp_scale, 1e-9), n_elements=n_elements), strict=True))[n]
+            out[n] = LogUniform(1e-5 / k, 0.05 / k)
         elif n == "sigma":
             out[n] = LogUniform(1e-4 * sd_y, 2 * sd_y)
         elif n == "rho":

@@ -44,7 +44,12 @@ def simulate_signal(
     ndarray, shape (T,)
         Signal in SI units of ``beam.quantity``.
     """
-    fwd = Forward(beam, model, times, n_elements=n_elements, initial=initial)
+    if parse_model(model).nonlinear:
+        from bayesbeam.nonlinear import NonlinearForward
+
+        fwd = NonlinearForward(beam, model, times, n_elements=n_elements, initial=initial)
+    else:
+        fwd = Forward(beam, model, times, n_elements=n_elements, initial=initial)
     p = dict(params)
     if "E" not in p and beam.E is not None:
         p["E"] = beam.E

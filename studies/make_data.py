@@ -16,8 +16,9 @@ real-world effects the source left out (physics.md §3):
   deflection (the TOML states it only to the nearest mm, as read off a ruler);
 * damping from a mix of laws: viscous (air) plus spatial hysteresis with a broad kernel
   (b = 0.25 L) on the flexible beam, viscous plus Kelvin–Voigt on the two stiffer ones;
-* vibrometer-like noise: white Gaussian noise (sd 10 µm) plus a weak AR(1) component
-  (sd 5 µm, lag-one correlation 0.5).
+* vibrometer-like noise: white Gaussian noise (sd 8 µm) plus an AR(1) component (sd 8 µm,
+  lag-one correlation 0.6, as from the decoder's output filter): 11 µm in all, lag-one
+  autocorrelation 0.3.
 
 Young's moduli are those of a quasi-isotropic CFRP laminate (55–68 GPa), so the first
 frequencies are 8–23 Hz (the source's fitted E of 6e7–2e8 Pa would give 0.4–1.7 Hz).
@@ -64,9 +65,9 @@ CUTOUT = Segment(start=0.1016, end=0.2032, I=0.4, rhoA=0.4)
 FS = 256.0  # Hz
 N_SAMPLES = 1280  # 5 s
 N_ELEMENTS_TRUTH = 32
-NOISE_WHITE_SD = 1.0e-5  # m
-NOISE_AR_SD = 5.0e-6  # m, marginal sd of the AR(1) component
-NOISE_AR_RHO = 0.5
+NOISE_WHITE_SD = 8.0e-6  # m
+NOISE_AR_SD = 8.0e-6  # m, marginal sd of the AR(1) component
+NOISE_AR_RHO = 0.6
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,7 @@ BEAMS: tuple[BeamSpec, ...] = (
 
 
 def user_beam(spec: BeamSpec) -> Beam:
-    """The beam as its user describes it (no E, rigid clamp assumed).
+    """Return the beam as its user describes it (no E, rigid clamp assumed).
 
     Parameters
     ----------
@@ -141,12 +142,12 @@ def user_beam(spec: BeamSpec) -> Beam:
 
 
 def true_beam(spec: BeamSpec) -> Beam:
-    """The beam that generated the data: the user's beam plus E and the clamp spring."""
+    """Return the generating beam: the user's beam plus E and the clamp spring."""
     return user_beam(spec).replace(E=spec.E, root_spring=spec.root_spring)
 
 
 def release_state(beam: Beam, E: float, w0: float, n_elements: int) -> np.ndarray:
-    """Static deflection shape under a tip load with tip deflection ``w0`` (m).
+    """Return the static shape under a tip load with tip deflection ``w0`` (m).
 
     Solves ``(E K + k_θ K_root) c = P e_tip`` on the compliant clamp (physics.md §3).
 
@@ -161,7 +162,7 @@ def release_state(beam: Beam, E: float, w0: float, n_elements: int) -> np.ndarra
 
 
 def noise(rng: np.random.Generator, n: int) -> np.ndarray:
-    """White plus AR(1) noise in m, shape (n,) (stationary from the first sample)."""
+    """Draw white plus AR(1) noise in m, shape (n,) (stationary from the first sample)."""
     white = NOISE_WHITE_SD * rng.standard_normal(n)
     xi = rng.standard_normal(n)
     ar = np.empty(n)
@@ -173,7 +174,7 @@ def noise(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def simulate(spec: BeamSpec, trial_index: int) -> tuple[np.ndarray, np.ndarray]:
-    """Times (s) and noisy tip displacement (m) of one trial, shapes (1280,)."""
+    """Return times (s) and noisy tip displacement (m) of one trial, shapes (1280,)."""
     beam = true_beam(spec)
     times = np.arange(N_SAMPLES) / FS
     w0 = spec.tip_deflections[trial_index]
@@ -276,7 +277,7 @@ def _truth_toml(rows: list[dict]) -> str:
 
 
 def beam_properties(spec: BeamSpec) -> dict:
-    """Modal properties of the true beam: frequencies, damping ratios, clamp effect."""
+    """Return modal properties of the true beam: frequencies, damping ratios, clamp effect."""
     beam = true_beam(spec)
     params = {"E": spec.E, **spec.damping}
     f, z = modal_properties(beam, spec.model, params, n_elements=N_ELEMENTS_TRUTH)
@@ -292,7 +293,7 @@ def beam_properties(spec: BeamSpec) -> dict:
 
 
 def markdown_table(rows: list[dict]) -> str:
-    """The generating values as the Markdown table of data/README.md."""
+    """Return the generating values as the Markdown table of data/README.md."""
     head = ("| beam | t (mm) | m (g) | E (GPa) | k_θ (N m/rad) | f1 shift | truth model | "
             "damping values | f1, f2 (Hz) | ζ1, ζ2 (%) | release w0 (mm) |")
     lines = [head, "|" + " --- |" * 11]

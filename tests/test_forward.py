@@ -72,23 +72,37 @@ def _physical_matrices(fwd: Forward, theta: np.ndarray):
 
 
 def _reference(fwd: Forward, theta: np.ndarray, times: np.ndarray, t0: float) -> np.ndarray:
-    """Sensor signal by scipy.linalg.expm of the physical first-order system at each time."""
+    """Sensor signal from scipy.linalg.expm of the physical first-order system.
+
+    State x = [c; c'/σ] with σ = ω_max, which balances the two blocks (with σ = 1 the
+    matrix has norm ~3e10 and the reference is only good to ~1e-9). Uniform grids step with
+    P = expm(A dt) (rounding grows ~linearly in the step count); other grids take one
+    expm(A (t - t0)) per sample.
+    """
     M, K, D = _physical_matrices(fwd, theta)
     n = M.shape[0]
     Minv = np.linalg.inv(M)
-    A = np.block([[np.zeros((n, n)), np.eye(n)], [-Minv @ K, -Minv @ D]])
+    sig = math.sqrt(sla.eigh(K, M, eigvals_only=True)[-1])
+    A = np.block([[np.zeros((n, n)), sig * np.eye(n)], [-Minv @ K / sig, -Minv @ D]])
     p = dict(zip(fwd.param_names, theta, strict=True))
     fe = fwd.fe
     if fwd.initial == "release":
         c0 = np.linalg.solve(K, fe.tip)
         x0 = np.concatenate([p["w0"] * c0 / (fe.tip @ c0), np.zeros(n)])
     else:  # impulse p0 at the tip: M c'(0+) = p0 e_tip
-        x0 = np.concatenate([np.zeros(n), p["p0"] * Minv @ fe.tip])
+        x0 = np.concatenate([np.zeros(n), p["p0"] * Minv @ fe.tip / sig])
     s = fwd.sensor
+    steps = np.diff(times)
+    uniform = np.allclose(steps, steps[0], rtol=1e-12, atol=0) and times[0] == t0
+    P = sla.expm(A * steps[0]) if uniform else None
     out = []
-    for t in times:
-        x = sla.expm(A * (t - t0)) @ x0
-        c, v = x[:n], x[n:]
+    x = x0
+    for k, t in enumerate(times):
+        if uniform:
+            x = x if k == 0 else P @ x
+        else:
+            x = sla.expm(A * (t - t0)) @ x0
+        c, v = x[:n], sig * x[n:]
         if fwd.quantity == "displacement":
             out.append(s @ c)
         elif fwd.quantity == "velocity":
@@ -116,7 +130,7 @@ def _accurate_omegas(fe, modulus: float) -> np.ndarray:
 
 # --- (1) against an independent integration of the same physical matrices ------------------
 UNIFORM_T = np.arange(300) * 2e-3  # 0.6 s, ~7 periods of mode 1
-NONUNIFORM_T = np.sort(np.random.default_rng(11).uniform(0.01, 0.6, 250))
+NONUNIFORM_T = np.sort(np.random.default_rng(11).uniform(0.01, 0.6, 120))
 
 
 @pytest.mark.parametrize("model", ["viscous", "kv", "sh", "viscous+kv+sh"])
@@ -136,8 +150,7 @@ def test_matches_physical_expm(model, quantity, grid):
     res = fwd.simulate(theta)
     assert res.valid.all()
     ref = _reference(fwd, theta[0], times, 0.0)
-    # Issue 2 asks for 1e-7 relative; measured 3e-11 .. 2e-9 (the reference itself, expm of
-    # a badly scaled ‖A‖ ~ 3e10 physical matrix, accounts for most of it).
+    # Issue 2 asks for 1e-7 relative; measured 4e-12 .. 2e-10 over these cases.
     assert _relmax(res.y[0], ref) < 1e-7
 
 
@@ -158,7 +171,8 @@ def test_matches_physical_expm_structural_and_impulse(model, extra, initial):
     theta = _params(fwd, **extra)
     res = fwd.simulate(theta)
     assert res.valid.all()
-    assert _relmax(res.y[0], _reference(fwd, theta[0], UNIFORM_T, 0.0)) < 1e-7  # issue 2
+    # Issue 2: 1e-7; measured 1e-13 .. 8e-11.
+    assert _relmax(res.y[0], _reference(fwd, theta[0], UNIFORM_T, 0.0)) < 1e-7
 
 
 # --- (2) single-mode analytic decay --------------------------------------------------------
@@ -221,7 +235,7 @@ def test_energy_non_increasing(model, extra):
     # Released from rest: all energy is strain energy ½ P w0 of the static tip load.
     p_tip = W0 / (fwd.fe.tip @ np.linalg.solve(K, fwd.fe.tip))
     assert energy[0] == pytest.approx(0.5 * p_tip * W0, rel=1e-10)  # rounding of the solves
-    # Non-increasing up to rounding (measured steps > -1e-15 of E(0)).
+    # Non-increasing up to rounding (measured: every step decreases, by >= 4e-10 E(0)).
     assert np.all(np.diff(energy) <= 1e-12 * energy[0])
     assert energy[-1] < 0.99 * energy[0]  # and the damping does act (ζ1 ≈ 1 %, 2.3 periods)
 
@@ -295,7 +309,7 @@ def test_start_before_first_sample_equals_slicing(uniform):
     theta = _params(full)
     y_full = full.simulate(theta).y[0]
     y_part = part.simulate(theta).y[0]
-    # Same exact solution, two propagation routes: rounding only (measured ~1e-13).
+    # Same exact solution, two propagation routes: rounding only (measured 5e-12).
     assert _relmax(y_part, y_full[120:]) < 1e-10
 
 
@@ -317,7 +331,8 @@ def test_batch_equals_one_by_one(model, times):
     assert batch.valid.all()
     for k in range(theta.shape[0]):
         one = fwd.simulate(theta[k])
-        # Per-set choices only (propagate's contract); BLAS may round differently in a batch.
+        # Per-set choices only (propagate's contract); BLAS may round differently in a batch
+        # (measured <= 6e-16).
         assert np.max(np.abs(batch.y[k] - one.y[0])) <= 1e-12 * np.max(np.abs(one.y[0]))
 
 
@@ -359,9 +374,16 @@ def test_invalid_sets_are_flagged_never_nan():
     assert fwd.check(theta).tolist() == [True] + [False] * 10 + [True] * 4 + [True]
 
 
-def test_structural_range_rules():
+@pytest.mark.parametrize("t0", [None, -0.01])
+def test_structural_range_rules(t0):
+    # The per-set eigendecomposition path: range violations and overflowing sets (absurd E or
+    # clamp stiffness that make LAPACK fail) are flagged per set, never raised for the batch.
     fwd = Forward(
-        BEAM, "viscous+root_spring+stiffness_gradient", np.arange(10) * 1e-3, n_elements=4
+        BEAM,
+        "viscous+root_spring+stiffness_gradient",
+        np.arange(10) * 1e-3,
+        n_elements=4,
+        t0=t0,
     )
     base = {"E": E, "gamma": GAMMA, "root_spring": 30.0, "stiffness_gradient": 0.0, "w0": W0}
     rows = [
@@ -369,12 +391,17 @@ def test_structural_range_rules():
         {**base, "root_spring": 0.0},
         {**base, "stiffness_gradient": 2.0},
         {**base, "stiffness_gradient": -2.5},
+        {**base, "E": 1e308},
+        {**base, "root_spring": 1e308},
+        base,
     ]
     theta = np.array([[r[n] for n in fwd.param_names] for r in rows])
-    assert fwd.check(theta).tolist() == [True, False, False, False]
-    res = fwd.simulate(theta)
-    assert res.valid.tolist() == [True, False, False, False]
-    assert np.all(np.isfinite(res.y))
+    assert fwd.check(theta).tolist() == [True, False, False, False, True, True, True]
+    with np.errstate(all="raise"):
+        res = fwd.simulate(theta)
+    assert res.valid.tolist() == [True, False, False, False, False, False, True]
+    assert np.all(np.isfinite(res.y)) and np.all(res.y[1:-1] == 0.0)
+    assert np.array_equal(res.y[0], res.y[-1])
 
 
 @pytest.mark.parametrize(
@@ -445,8 +472,7 @@ def test_state_initial_condition_matches_release():
 
 # --- (6) modal damping ratios (physics.md §2) -------------------------------------------------
 def _fe_frequencies(n_elements: int = 16) -> np.ndarray:
-    fe = assemble(BEAM, n_elements)
-    return np.sqrt(sla.eigh(E * fe.K, fe.M, eigvals_only=True))
+    return _accurate_omegas(assemble(BEAM, n_elements), E)
 
 
 def test_viscous_damping_ratios_formula():
@@ -456,7 +482,8 @@ def test_viscous_damping_ratios_formula():
     k = f.size
     assert k >= 20  # all but the most heavily damped few stay underdamped
     # Exact: uniform beam, C = (gamma/rhoA) I, λ = -ζω ± iω√(1-ζ²); issue 2 tolerance 1e-8.
-    assert np.allclose(f, w[:k] / (2 * np.pi), rtol=1e-10, atol=0)
+    # Forward's ω carry the ~eps λ_max/λ rounding of eigh(K, M) (measured 4e-11 on ω1).
+    assert np.allclose(f, w[:k] / (2 * np.pi), rtol=1e-9, atol=0)
     assert np.max(np.abs(z - gamma / (2 * RHOA * w[:k]))) < 1e-8
 
 
@@ -469,7 +496,8 @@ def test_kelvin_voigt_damping_ratios_formula():
     k = int(under.sum())
     assert 5 <= k < w.size and f.size == k  # the overdamped modes are left out
     # Uniform beam: KV = K/E, C = (c_d/E) Ω², ζ = c_d ω / (2E); issue 2 tolerance 1e-8.
-    assert np.allclose(f, w[:k] / (2 * np.pi), rtol=1e-10, atol=0)
+    # Forward's ω carry the ~eps λ_max/λ rounding of eigh(K, M) (measured 4e-11 on ω1).
+    assert np.allclose(f, w[:k] / (2 * np.pi), rtol=1e-9, atol=0)
     assert np.max(np.abs(z - zeta[:k])) < 1e-8
 
 

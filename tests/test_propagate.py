@@ -155,6 +155,12 @@ def test_expm_huge_norm_is_prescaled():
     np.testing.assert_allclose(pg.expm_batched(A)[0], np.diag([0.0, 1.0]), atol=1e-15)
     with pytest.raises(PropagationError, match="not finite"):
         pg.expm_batched(np.full((1, 2, 2), 1e300))  # would need > 128 squarings
+    E, valid = pg.expm_batched(
+        np.array([np.eye(2), np.full((2, 2), 1e300), [[0, np.nan], [0, 0]], 800 * np.eye(2)]),
+        return_valid=True,
+    )
+    assert valid.tolist() == [True, False, False, False]  # e^800 overflows
+    assert np.isnan(E[1:]).all() and np.allclose(E[0], math.e * np.eye(2), rtol=1e-15)
 
 
 def test_expm_rejects_bad_input():
