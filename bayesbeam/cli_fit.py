@@ -25,6 +25,14 @@ the finished steps; ``--resume`` continues them); then write into ``OUTDIR``:
 ``chain.h5``                emcee checkpoint
 ==========================  ===========================================================
 
+Output: the summary table (or, with ``--json``, the record of
+:meth:`bayesbeam.results.FitResult.to_json_dict`: ``model``, ``posterior``
+({name: {mean, sd, q05, q50, q95}}), ``ess_min``, ``tau_max``, ``rhat_max``,
+``converged``, ``seconds`` (sampling wall time), plus ``total_seconds`` (the whole
+command), diagnostics, MAP, priors, settings and provenance). A run that stops at
+``--max-steps`` before converging prints ``WARNING: ... NOT CONVERGED: <reason>`` on
+stderr and still exits 0 with all files written.
+
 Preprocessing order: the window is applied first, so no data outside it reaches the
 fit through the decimation filter (:meth:`bayesbeam.trial.Trial.decimate` drops the
 filter's edge samples inside the window instead).

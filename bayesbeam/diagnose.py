@@ -415,9 +415,10 @@ def describe_signatures(sig: Any) -> list[str]:
             out.append(f"Mode {m.mode}: f data {m.data.frequency:.4g} Hz vs model "
                        f"{m.model.frequency:.4g} Hz; ζ data {m.data.damping_ratio:.3g} vs model "
                        f"{m.model.damping_ratio:.3g}.")
-    if math.isfinite(sig.decay_slope_diff):
-        out.append(f"Decay rate vs amplitude (mode 1): normalised slope difference data − model "
-                   f"{sig.decay_slope_diff:+.2f} ± {sig.decay_slope_diff_err:.2f}.")
+    if math.isfinite(sig.decay_excess_diff):
+        out.append(f"Decay rate vs amplitude (mode 1): excess decay rate at the initial amplitude "
+                   f"data − model {100 * sig.decay_excess_diff:+.0f} ± "
+                   f"{100 * sig.decay_excess_diff_err:.0f} %.")
     out.append(f"Residual mean {sig.residual_mean:.3g} (z = {sig.residual_mean_z:.1f}); "
                f"{100 * sig.lowfreq_fraction:.1f} % of the residual power below f1/2.")
     return out
@@ -453,13 +454,15 @@ def signature_support(cause: str, sig: Any) -> tuple[bool | None, str]:
             return big, txt
         return bool(big and s > 0), txt
     if cause == "amplitude_damping":
-        d, e = sig.decay_slope_diff, sig.decay_slope_diff_err
+        d, e = sig.decay_excess_diff, sig.decay_excess_diff_err
         if not math.isfinite(d):
             return None, "decay rate vs amplitude not measurable"
         way = ("faster at large amplitude (drag)" if d > 0
                else "faster at small amplitude (friction)")
-        return bool(abs(d) > 2 * e), (f"mode-1 decay rate changes with amplitude beyond the model: "
-                                      f"normalised slope difference {d:+.2f} ± {e:.2f}, {way}")
+        return bool(abs(d) > 2 * e), (
+            "mode-1 decay rate changes with amplitude beyond the model: its excess at the "
+            f"initial amplitude is {100 * d:+.0f} ± {100 * e:.0f} % of the small-amplitude "
+            f"rate, {way}")
     if cause == "ar1_noise":
         return bool(not sig.white and sig.lag1 > 0.2), (
             f"residuals autocorrelated: lag-1 {sig.lag1:.2f}, Ljung–Box p = {sig.ljung_box_p:.2g}")
@@ -542,23 +545,28 @@ class _Engine:
         """Measured f1, f2 and decay rates of the data (for physics-based starts)."""
         if self._features is None:
             from bayesbeam.problem import first_frequency
-            from bayesbeam.signatures import band_modal_estimate, periodogram, spectral_peak
+            from bayesbeam.signatures import damped_sinusoids, periodogram, spectral_peak
 
             t, y = self.trial.times, self.trial.values
             f1 = first_frequency(t, y)
-            feats: dict[str, float] = {"f1": f1}
-            f, amp = periodogram(t, y)
-            f2 = spectral_peak(f, amp, f1 * 6.267, rel_window=0.15)  # uniform f2/f1 (§4)
             nyq = 0.5 / float(np.median(np.diff(t)))
-            for k, fk in ((1, f1), (2, f2)):
-                if fk is None or fk * 1.3 >= 0.95 * nyq:
-                    continue
-                if k == 2:
-                    feats["f2"] = fk
-                est = band_modal_estimate(t, y, fk)
-                if est is not None and est.decay_rate > 0:
-                    feats[f"sigma{k}"] = est.decay_rate
-                    feats[f"f{k}"] = est.frequency
+            f, amp = periodogram(t, y)
+            guesses = [f1]
+            # Uniform-cantilever ratios f2/f1 = 6.267, f3/f1 = 17.55 (physics.md §4).
+            for ratio in (6.267, 17.55):
+                g = spectral_peak(f, amp, f1 * ratio, rel_window=0.15)
+                if g is None or g > 0.8 * nyq:
+                    break
+                guesses.append(g)
+            est = damped_sinusoids(t, y, guesses)
+            feats: dict[str, float] = {"f1": f1}
+            for k, e in enumerate(est[:2], start=1):
+                if e is not None:
+                    feats[f"f{k}"] = e.frequency
+                    if e.decay_rate > 0:
+                        feats[f"sigma{k}"] = e.decay_rate
+            if est[0] is None:
+                feats.pop("f2", None)  # a ratio needs both
             self._features = feats
         return self._features
 
@@ -767,8 +775,13 @@ def _neutral(pb: Any, name: str) -> float:
         return float(np.std(pb.data))
     if name == "E":
         return float(np.sqrt(lo * hi)) if np.isfinite(hi) else float(lo)
+    if name == "tip_mass":
+        return 1.001 * lo  # even 0.3 % of the beam mass shifts f1 by ~0.6 %
     if np.isfinite(lo) and lo > 0:
-        return 3.0 * lo  # tip mass, damping coefficients, drag, friction: near zero
+        # Damping coefficients, drag, friction: the prior's lower end (even that is not
+        # quite neutral: KV at ζ1 = 1e-6 still damps the highest FE modes visibly in an
+        # acceleration record).
+        return 1.001 * lo
     return float(np.clip(0.0, lo, hi))
 
 
@@ -1033,7 +1046,8 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
         eng.optimise(st, eng.starts(st, cur.x))
         scores[cause] = {"model": ext.name, "gain": st.ll - cur.ll, "note": "",
                          "seconds": time.perf_counter() - t0}
-        log(f"  round {index} screen {cause}: Δχ²/2 = {st.ll - cur.ll:.2f}")
+        log(f"  round {index} screen {cause}: Δχ²/2 = {st.ll - cur.ll:.2f} "
+            f"({time.perf_counter() - t0:.1f} s)")
     passing = [c for c, s in scores.items() if s["gain"] > SCREEN_THRESHOLD]
     # A better optimum of the current model found from a candidate's MAP replaces its MAP.
     if passing:

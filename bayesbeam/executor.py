@@ -395,7 +395,7 @@ def _plots(trial: Any, problem: Any, score: Any, folder: Path, s: Mapping) -> li
             freqs = None
     plot_residual_spectrum(trial, resid, folder / "residual_spectrum.png",
                            mode_freqs_hz=freqs, dpi=dpi)
-    res.plot_corner(folder / "corner.png", dpi=min(dpi, 80))
+    res.plot_corner(folder / "corner.png", dpi=min(dpi, 60))
     return ["fit.png", "residual_spectrum.png", "corner.png"]
 
 
@@ -414,13 +414,24 @@ def run_fit_task(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float
         The ``score.json`` record.
     seconds : float
         Wall-clock time of the task.
+
+    Raises
+    ------
+    ExecutorError
+        When the fit fails; the message names the task and the cause.
     """
     # One task at a time per process: the warning filters that evaluate() uses to record
     # the sampler's warnings and the BLAS thread limit are process-wide, so tasks in
     # threads of one process (a threaded Dask worker) must not overlap. Parallelism comes
     # from processes (a process pool, or Dask workers with one thread each).
     with _TASK_LOCK:
-        return _run_locked(task)
+        try:
+            return _run_locked(task)
+        except Exception as err:  # say which task failed; the cause stays chained
+            raise ExecutorError(
+                f"fit of {task.model!r} on {task.trial_name} ({task.trial_file}) failed: "
+                f"{type(err).__name__}: {err}"
+            ) from err
 
 
 def _run_locked(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float]:

@@ -32,10 +32,12 @@ no pyplot state).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.optimize as sopt
 import scipy.signal as ssig
 import scipy.stats as sst
 
@@ -48,6 +50,7 @@ __all__ = [
     "autocorrelation",
     "band_modal_estimate",
     "compute_signatures",
+    "damped_sinusoids",
     "decay_rate_vs_amplitude",
     "ljung_box",
     "model_modes",
@@ -347,35 +350,171 @@ def band_modal_estimate(
     )
 
 
+def _fit_modes(t: np.ndarray, y: np.ndarray, f0: np.ndarray, s0: np.ndarray, *,
+               offset: bool, excess: bool) -> dict[str, Any]:
+    """Variable-projection fit of damped sinusoids (optionally with an excess on mode 0)."""
+    K = f0.size
+    w0 = 2 * np.pi * f0
+
+    def shapes(p: np.ndarray) -> np.ndarray:
+        e = np.exp(-np.outer(t, p[K : 2 * K]))
+        if excess:
+            # A(t)/A0 = e^{-σ0 t} / (1 + c (1 - e^{-σ0 t})): dA/dt = -σ0 A - κ A², c = κ A0/σ0.
+            e0 = e[:, 0]
+            e[:, 0] = e0 / (1.0 + p[2 * K] * (1.0 - e0))
+        return e
+
+    def basis(p: np.ndarray) -> np.ndarray:
+        e = shapes(p)
+        ph = 2 * np.pi * np.outer(t, p[:K])
+        cols = [e * np.cos(ph), e * np.sin(ph)]
+        if offset:
+            cols.append(np.ones((t.size, 1)))
+        return np.hstack(cols)
+
+    def resid(p: np.ndarray) -> np.ndarray:
+        B = basis(p)
+        coef, *_ = np.linalg.lstsq(B, y, rcond=None)
+        return y - B @ coef
+
+    p0 = np.concatenate([f0, np.clip(s0, -0.005 * w0, 0.5 * w0)])
+    lo = np.concatenate([0.8 * f0, -0.01 * w0])
+    hi = np.concatenate([1.2 * f0, 0.5 * w0])
+    if excess:
+        p0, lo, hi = np.append(p0, 0.0), np.append(lo, -0.9), np.append(hi, 50.0)
+    res = sopt.least_squares(resid, np.clip(p0, lo, hi), bounds=(lo, hi), x_scale="jac",
+                             method="trf")
+    p, r = res.x, res.fun
+    B = basis(p)
+    coef, *_ = np.linalg.lstsq(B, y, rcond=None)
+    s2 = float(r @ r) / max(t.size - p.size - B.shape[1], 1)
+    rho = float(np.clip(autocorrelation(r, 1)[1], 0.0, 0.99)) if float(r @ r) > 0 else 0.0
+    infl = (1 + rho) / (1 - rho)
+
+    def se_of(J: np.ndarray) -> np.ndarray:
+        try:
+            return np.sqrt(np.maximum(np.diag(np.linalg.inv(J.T @ J)), 0.0) * s2 * infl)
+        except np.linalg.LinAlgError:
+            return np.full(J.shape[1], np.inf)
+
+    return {"p": p, "se": se_of(res.jac), "coef": coef, "se_lin": se_of(B), "K": K}
+
+
+def _check_series(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(times, dtype=float)
+    y = np.asarray(values, dtype=float)
+    if t.ndim != 1 or t.shape != y.shape or t.size < 8:
+        raise SignatureError(
+            f"times and values must be 1-D arrays of the same length >= 8, got {t.shape} "
+            f"and {y.shape}"
+        )
+    return t - t[0], y
+
+
+def damped_sinusoids(
+    times: np.ndarray,
+    values: np.ndarray,
+    f0: Sequence[float],
+    sigma0: Sequence[float] | None = None,
+    *,
+    offset: bool = True,
+    min_snr: float = 5.0,
+) -> list[ModalEstimate | None]:
+    """Frequencies and decay rates of several modes by a damped-sinusoid least-squares fit.
+
+    The record is fitted by ``c + Σ_k e^{-σ_k t} (a_k cos 2π f_k t + b_k sin 2π f_k t)``
+    (t from the first sample) with the amplitudes ``a_k, b_k`` and ``c`` solved by
+    linear least squares inside the optimisation of ``(f_k, σ_k)`` (variable
+    projection, Golub & Pereyra 1973), which reaches the Cramér–Rao accuracy on short
+    records where band-pass filters ring. Standard errors come from the Jacobian of
+    the projected residual, inflated by the AR(1) factor ``(1+ρ)/(1-ρ)`` of the
+    residual's lag-1 correlation ρ (unmodelled content is correlated).
+
+    Parameters
+    ----------
+    times, values : ndarray, shape (T,)
+        Record (s, signal units); non-uniform stamps are used as they are.
+    f0 : sequence of float
+        Starting frequencies in Hz (e.g. a model's), each searched within ±20 %.
+        Include every mode present below the Nyquist frequency (and aliases of higher
+        ones) or they bias the others.
+    sigma0 : sequence of float, optional
+        Starting decay rates in 1/s (default 1 % of critical).
+    offset : bool
+        Fit a constant too.
+    min_snr : float
+        A mode whose fitted amplitude is below ``min_snr`` times its standard error
+        is reported as None (not measurable).
+
+    Returns
+    -------
+    list of ModalEstimate or None
+        One entry per ``f0``; ``amplitude`` is the fitted amplitude at the first sample.
+    """
+    t, y = _check_series(times, values)
+    f0 = np.asarray(f0, dtype=float)
+    K = f0.size
+    if K == 0:
+        return []
+    s0 = (0.01 * 2 * np.pi * f0 if sigma0 is None
+          else np.maximum(np.asarray(sigma0, dtype=float), 1e-6 * 2 * np.pi * f0))
+    fit = _fit_modes(t, y, f0, s0, offset=offset, excess=False)
+    p, se, coef, se_lin = fit["p"], fit["se"], fit["coef"], fit["se_lin"]
+    out: list[ModalEstimate | None] = []
+    for k in range(K):
+        amp = math.hypot(coef[k], coef[K + k])
+        amp_se = math.hypot(se_lin[k], se_lin[K + k]) / math.sqrt(2)
+        if not amp > min_snr * amp_se:
+            out.append(None)
+            continue
+        f, sg = float(p[k]), float(p[K + k])
+        out.append(ModalEstimate(
+            frequency=f, frequency_se=float(se[k]), decay_rate=sg, decay_rate_se=float(se[K + k]),
+            damping_ratio=float(sg / math.hypot(sg, 2 * np.pi * f)), amplitude=float(amp),
+        ))
+    return out
+
+
 @dataclass(frozen=True)
 class DecayAmplitude:
-    """Local decay rate of one mode against its amplitude.
+    """Decay rate of one mode against its amplitude.
+
+    The whole record is fitted with an amplitude-dependent envelope for the mode,
+    ``A(t)/A0 = e^{-σ0 t} / (1 + c (1 - e^{-σ0 t}))``, the solution of
+    ``dA/dt = -σ0 A - κ A²`` with ``c = κ A0/σ0``: the decay rate is ``σ0 (1 + c)``
+    at the first sample and tends to σ0 as the amplitude falls. ``c`` is the relative
+    excess of the decay rate at the initial amplitude: 0 for a linear mode, > 0 when
+    it decays faster at large amplitude (quadratic drag), < 0 when faster at small
+    amplitude (dry friction). Window estimates are kept for plotting.
 
     Attributes
     ----------
     frequency : float
-        Centre of the band in Hz.
+        Mode frequency in Hz.
+    excess, excess_se : float
+        ``c`` and its standard error (dimensionless).
+    rate0 : float
+        Small-amplitude decay rate σ0 in 1/s.
+    amplitude0 : float
+        Fitted amplitude at the first sample (signal units).
     amplitude : ndarray, shape (k,)
-        Mean envelope in each window (signal units).
+        Window-centre amplitudes (signal units), possibly empty.
     rate : ndarray, shape (k,)
-        Local decay rate σ in 1/s (minus the slope of the log envelope in the window).
-    slope : float
-        Least-squares slope dσ/dA in 1/(s·signal unit); > 0: decays faster at large
-        amplitude (quadratic drag), < 0: faster at small amplitude (dry friction).
-    slope_se : float
-        Its standard error (non-overlapping windows, so the rates are nearly
-        independent).
-    relative_change : float
-        ``slope · (A_max - A_min) / mean σ``: the relative change of the decay rate
-        across the amplitude range (0 for a linear mode).
+        Window decay rates in 1/s.
     """
 
     frequency: float
+    excess: float
+    excess_se: float
+    rate0: float
+    amplitude0: float
     amplitude: np.ndarray
     rate: np.ndarray
-    slope: float
-    slope_se: float
-    relative_change: float
+
+    @property
+    def slope(self) -> float:
+        """Return dσ/dA = c σ0 / A0 in 1/(s·signal unit)."""
+        return self.excess * self.rate0 / self.amplitude0 if self.amplitude0 else math.nan
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return a JSON-serialisable dictionary (arrays as lists).
@@ -386,11 +525,12 @@ class DecayAmplitude:
         """
         return {
             "frequency_hz": self.frequency,
-            "amplitude": self.amplitude.tolist(),
-            "rate": self.rate.tolist(),
-            "slope": _finite(self.slope),
-            "slope_se": _finite(self.slope_se),
-            "relative_change": _finite(self.relative_change),
+            "excess": _finite(self.excess),
+            "excess_se": _finite(self.excess_se),
+            "rate0": _finite(self.rate0),
+            "amplitude0": _finite(self.amplitude0),
+            "window_amplitude": [_finite(v) for v in self.amplitude],
+            "window_rate": [_finite(v) for v in self.rate],
         }
 
 
@@ -399,63 +539,88 @@ def decay_rate_vs_amplitude(
     values: np.ndarray,
     f_center: float,
     *,
+    other: Sequence[float] = (),
     periods_per_window: float = 3.0,
-    half_width: float = 0.3,
-    trim: float = 0.1,
-    floor: float = 0.0,
+    min_snr: float = 5.0,
 ) -> DecayAmplitude | None:
-    """Local decay rate of the mode near ``f_center`` in windows, against amplitude.
+    """Decay rate of the mode near ``f_center`` against its amplitude.
 
-    The band-passed Hilbert envelope (as in :func:`band_modal_estimate`) is cut into
-    non-overlapping windows of ``periods_per_window`` periods; in each, σ is minus the
-    slope of a straight line through log-envelope and A its mean. For a quadratic drag
-    force the envelope obeys dA/dt = -σ0 A - κ A² (first-order averaging), so σ(A) =
-    σ0 + κ A and the slope recovers κ.
+    The record is low-passed at ``min(2.5 f_center, 0.6 f_next)`` (zero-phase
+    Butterworth, order 4; two periods of the cut-off trimmed at each end), then the
+    whole of it is fitted
+    with the amplitude-dependent envelope of
+    :class:`DecayAmplitude` for this mode and plain damped sinusoids for the
+    ``other`` modes (variable projection, as :func:`damped_sinusoids`; no filter, so
+    it works on records of a few periods). For plotting, consecutive windows of
+    ``periods_per_window`` periods are also fitted with plain damped sinusoids, giving
+    local (A, σ) points.
 
     Parameters
     ----------
     times, values : ndarray, shape (T,)
     f_center : float
         Mode frequency in Hz.
+    other : sequence of float
+        Natural frequencies (Hz) of the other modes present; those above the Nyquist
+        frequency are folded to their aliases here.
     periods_per_window : float
-        Window length in periods of the mode.
-    half_width, trim, floor : float
-        As in :func:`band_modal_estimate`.
+        Window length of the plotted points, in periods of the mode.
+    min_snr : float
+        The mode must exceed ``min_snr`` standard errors (globally, and in a window
+        for its point to be kept).
 
     Returns
     -------
     DecayAmplitude or None
-        None with fewer than 3 windows above the floor.
+        None when the mode is not measurable.
     """
-    grid, y, dt = uniform_grid(times, values)
-    yb = _bandpass(y, dt, f_center * (1 - half_width), f_center * (1 + half_width))
-    env = np.abs(ssig.hilbert(yb))
-    n = y.size
-    k0, k1 = int(trim * n), n - int(trim * n)
-    t, e = grid[k0:k1], env[k0:k1]
-    w = max(4, int(round(periods_per_window / (f_center * dt))))
-    amps, rates = [], []
-    for s in range(0, t.size - w + 1, w):
-        ee = e[s : s + w]
-        if np.min(ee) <= max(floor, 1e-300):
-            break
-        slope = np.polyfit(t[s : s + w], np.log(ee), 1)[0]
-        amps.append(float(np.mean(ee)))
-        rates.append(float(-slope))
-    if len(amps) < 3:
+    _check_series(times, values)
+    t, y, dt = uniform_grid(times, values)
+    t = t - t[0]
+    nyq = 0.5 / dt
+    # Low-pass well below the next mode:
+    # with an acceleration sensor the higher modes (and their aliases) dominate the
+    # record and would bias a short fit of mode 1. A low-pass settles within a few
+    # periods of its cut-off (unlike a narrow band-pass), which are trimmed.
+    above = [float(f) for f in other if f > 1.3 * f_center]
+    cut = min(2.5 * float(f_center), 0.6 * min(above, default=np.inf), 0.9 * nyq)
+    fs = 2 * nyq
+    # Modes above the Nyquist frequency appear at their aliases |f - round(f/fs) fs|.
+    other = [abs(f - round(f / fs) * fs) for f in above]
+    sos = ssig.butter(4, cut / nyq, btype="low", output="sos")
+    y = ssig.sosfiltfilt(sos, y - np.mean(y))
+    k = int(math.ceil(2.0 / (cut * dt)))
+    if t.size - 2 * k < 16:
         return None
-    A, R = np.array(amps), np.array(rates)
-    X = np.column_stack([A, np.ones_like(A)])
-    coef, *_ = np.linalg.lstsq(X, R, rcond=None)
-    res = R - X @ coef
-    sxx = float(np.sum((A - A.mean()) ** 2))
-    s2 = float(res @ res) / max(A.size - 2, 1)
-    se = math.sqrt(s2 / sxx) if sxx > 0 else math.inf
-    mean_rate = float(np.mean(R))
-    rel = float(coef[0] * (A.max() - A.min()) / mean_rate) if mean_rate != 0 else math.nan
+    t, y = t[k:-k] - t[k], y[k:-k]
+    freqs = np.array([float(f_center)] + [float(f) for f in other
+                                           if 0 < f < cut and abs(f / f_center - 1) > 0.3])
+    glob = damped_sinusoids(t, y, freqs, min_snr=0.0)
+    f0 = np.array([g.frequency if g is not None else f for g, f in zip(glob, freqs, strict=True)])
+    s0 = np.array([g.decay_rate if g is not None and g.decay_rate > 0 else 0.01 * 2 * np.pi * f
+                   for g, f in zip(glob, f0, strict=True)])
+    fit = _fit_modes(t, y, f0, s0, offset=True, excess=True)
+    K = fit["K"]
+    amp0 = math.hypot(fit["coef"][0], fit["coef"][K])
+    amp_se = math.hypot(fit["se_lin"][0], fit["se_lin"][K]) / math.sqrt(2)
+    if not amp0 > min_snr * amp_se:
+        return None
+    span = periods_per_window / float(f_center)
+    amps, rates = [], []
+    for a in np.arange(t[0], t[-1] - 0.999 * span, span):
+        sel = (t >= a) & (t < a + span)
+        if np.count_nonzero(sel) < 8 + 4 * K:
+            break
+        est = damped_sinusoids(t[sel], y[sel], f0, s0, min_snr=min_snr)[0]
+        if est is None:
+            break
+        half = 0.5 * (t[sel][-1] - t[sel][0])
+        amps.append(est.amplitude * math.exp(-est.decay_rate * half))
+        rates.append(est.decay_rate)
     return DecayAmplitude(
-        frequency=float(f_center), amplitude=A, rate=R, slope=float(coef[0]),
-        slope_se=float(se), relative_change=rel,
+        frequency=float(fit["p"][0]), excess=float(fit["p"][2 * K]),
+        excess_se=float(fit["se"][2 * K]), rate0=float(fit["p"][K]), amplitude0=float(amp0),
+        amplitude=np.array(amps), rate=np.array(rates),
     )
 
 
@@ -649,9 +814,10 @@ class Signatures:
         ζ2/ζ1 from data and prediction (frequency dependence of damping).
     decay_data, decay_model : DecayAmplitude or None
         Decay rate vs amplitude of mode 1 for the data and the prediction.
-    decay_slope_diff, decay_slope_diff_err : float
-        Normalised slope difference ``(slope_data - slope_model) · A_mean / σ_mean``
-        (relative change of the rate per relative amplitude) and its se.
+    decay_excess_diff, decay_excess_diff_err : float
+        Difference data - model of the relative excess decay rate at the initial
+        amplitude (:class:`DecayAmplitude`), and its se: > 0 the data decay faster at
+        large amplitude than the model (drag), < 0 faster at small amplitude (friction).
     coverage50, coverage90 : float
         Fractions of data inside the central 50 % / 90 % predictive intervals.
     notes : tuple of str
@@ -690,8 +856,8 @@ class Signatures:
     zeta_ratio_model: float
     decay_data: DecayAmplitude | None
     decay_model: DecayAmplitude | None
-    decay_slope_diff: float
-    decay_slope_diff_err: float
+    decay_excess_diff: float
+    decay_excess_diff_err: float
     coverage50: float
     coverage90: float
     notes: tuple[str, ...] = field(default_factory=tuple)
@@ -735,8 +901,8 @@ class Signatures:
             "decay_vs_amplitude": {
                 "data": None if self.decay_data is None else self.decay_data.to_json_dict(),
                 "model": None if self.decay_model is None else self.decay_model.to_json_dict(),
-                "normalised_slope_difference": _finite(self.decay_slope_diff),
-                "normalised_slope_difference_err": _finite(self.decay_slope_diff_err),
+                "excess_difference": _finite(self.decay_excess_diff),
+                "excess_difference_err": _finite(self.decay_excess_diff_err),
             },
             "coverage": {"central50": _finite(self.coverage50),
                          "central90": _finite(self.coverage90)},
@@ -823,18 +989,13 @@ def compute_signatures(
     lowfreq = float(pw[fr < 0.5 * f1_ref].sum() / pw.sum()) if pw.sum() > 0 else 0.0
     # Per-mode comparison: the same estimator on data and prediction.
     modes = []
-    floor = 3.0 * float(np.std(r))
-    for k in range(min(n_modes, f_model.size)):
-        fk = float(f_model[k])
-        if fk * 1.3 >= 0.9 * nyq:
-            break
-        try:
-            ed = band_modal_estimate(t, data, fk, floor=floor)
-            em = band_modal_estimate(t, pred, fk, floor=floor)
-        except SignatureError as err:
-            notes.append(f"mode {k + 1}: {err}")
-            ed = em = None
-        modes.append(ModeComparison(k + 1, fk, float(z_model[k]), ed, em))
+    fk = [float(f) for f in f_model[:n_modes] if f < 0.8 * nyq]
+    sk = [float(z) * 2 * np.pi * float(f) for f, z in zip(f_model, z_model, strict=False)]
+    if fk:
+        ed = damped_sinusoids(t, data, fk, sk[: len(fk)])
+        em = damped_sinusoids(t, pred, fk, sk[: len(fk)])
+        for k in range(len(fk)):
+            modes.append(ModeComparison(k + 1, fk[k], float(z_model[k]), ed[k], em[k]))
     ratio_d = ratio_m = shift = shift_err = zr_d = zr_m = math.nan
     if len(modes) >= 2 and all(m.data and m.model for m in modes[:2]):
         d1, d2 = modes[0].data, modes[1].data
@@ -847,19 +1008,18 @@ def compute_signatures(
         zr_m = m2.damping_ratio / m1.damping_ratio if m1.damping_ratio > 0 else math.nan
     elif f_model.size >= 2:
         notes.append("mode 2 not measurable: f2/f1 not compared")
-    # Decay rate vs amplitude of mode 1.
+    # Decay rate vs amplitude of mode 1 (all other model modes, aliases folded, included).
     dd = dm = None
-    sdiff = sdiff_err = math.nan
+    ddiff = ddiff_err = math.nan
     if f_model.size:
-        try:
-            dd = decay_rate_vs_amplitude(t, data, f1_ref, floor=floor)
-            dm = decay_rate_vs_amplitude(t, pred, f1_ref, floor=floor)
-        except SignatureError as err:
-            notes.append(f"decay vs amplitude: {err}")
-        if dd is not None and dm is not None:
-            scale = float(np.mean(dd.amplitude) / np.mean(dd.rate)) if np.mean(dd.rate) else 0.0
-            sdiff = (dd.slope - dm.slope) * scale
-            sdiff_err = math.hypot(dd.slope_se, dm.slope_se) * abs(scale)
+        others = [float(f) for f in f_model[1:]]
+        dd = decay_rate_vs_amplitude(t, data, f1_ref, other=others)
+        dm = decay_rate_vs_amplitude(t, pred, f1_ref, other=others)
+        if dd is None or dm is None:
+            notes.append("decay vs amplitude: mode 1 not measurable")
+        else:
+            ddiff = dd.excess - dm.excess
+            ddiff_err = math.hypot(dd.excess_se, dm.excess_se)
     lo, hi = np.quantile(y_rep, [0.05, 0.95], axis=0)
     q25, q75 = np.quantile(y_rep, [0.25, 0.75], axis=0)
     return Signatures(
@@ -896,8 +1056,8 @@ def compute_signatures(
         zeta_ratio_model=zr_m,
         decay_data=dd,
         decay_model=dm,
-        decay_slope_diff=sdiff,
-        decay_slope_diff_err=sdiff_err,
+        decay_excess_diff=ddiff,
+        decay_excess_diff_err=ddiff_err,
         coverage50=float(np.mean((data >= q25) & (data <= q75))),
         coverage90=float(np.mean((data >= lo) & (data <= hi))),
         notes=tuple(notes),
@@ -981,11 +1141,16 @@ def plot_signatures(sig: Signatures, *, title: str | None = None) -> Any:
            title=f"f2/f1 shift {100 * sig.ratio_shift:+.2f} ± {100 * sig.ratio_shift_err:.2f} %")
     ax = axs[2, 1]
     for d, style, lab in ((sig.decay_data, "ks", "data"), (sig.decay_model, "C1o", "model")):
-        if d is not None:
-            ax.plot(d.amplitude, d.rate, style, ms=4, label=f"{lab}: slope {d.slope:.3g}")
+        if d is None:
+            continue
+        if d.amplitude.size:
+            ax.plot(d.amplitude, d.rate, style, ms=4, label=f"{lab} (windows)")
+        a = np.linspace(0.0, d.amplitude0, 50)
+        ax.plot(a, d.rate0 * (1 + d.excess * a / d.amplitude0), style[:-1] + "-", lw=1,
+                label=f"{lab}: excess {d.excess:+.2f} ± {d.excess_se:.2f}")
     ax.set(xlabel="mode-1 amplitude [SI]", ylabel="decay rate σ [1/s]",
-           title=f"decay vs amplitude (normalised slope diff {sig.decay_slope_diff:+.2f} "
-                 f"± {sig.decay_slope_diff_err:.2f})")
+           title=f"decay vs amplitude: excess data − model {sig.decay_excess_diff:+.2f} "
+                 f"± {sig.decay_excess_diff_err:.2f}")
     ax.legend(fontsize=7)
     fig.suptitle(title or f"model {sig.model}: residual signatures")
     return fig

@@ -11,21 +11,29 @@ The trial is synthetic, from the source's single-ply beam with a physical modulu
 a first-mode damping ratio of 0.5 %, released from a 5 mm tip deflection, white
 noise of 10 µm.
 
-Run: ``.venv/bin/python studies/bench_compare.py [--target-ess X] [--max-steps N]``.
+With ``--jobs 2`` the three fits run in two processes through
+:mod:`bayesbeam.executor` (bitwise the same results, see its docstring) and the
+ranking is rebuilt from their result folders with
+:func:`bayesbeam.compare.compare_scores`.
+
+Run: ``.venv/bin/python studies/bench_compare.py [--jobs N] [--target-ess X] [--max-steps N]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 from bayesbeam.bench import bench_beam
-from bayesbeam.compare import compare
+from bayesbeam.compare import compare, compare_scores
 from bayesbeam.problem import BETA1
 from bayesbeam.simulate import simulate_trial
+from bayesbeam.trial import write_trial
 
 MODELS = ("viscous", "viscous+kv", "viscous+sh")
 
@@ -62,12 +70,26 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--max-steps", type=int, default=20_000)
     ap.add_argument("--elements", type=int, default=16)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=1, help="processes for the fits")
     args = ap.parse_args(argv)
     trial = bench_trial(args.seed)
-    print(f"trial: {trial.times.size} samples, {args.elements} elements, models {MODELS}")
+    print(f"trial: {trial.times.size} samples, {args.elements} elements, models {MODELS}, "
+          f"jobs {args.jobs}")
     t0, c0 = time.perf_counter(), time.process_time()
-    cmp = compare(trial, MODELS, seed=args.seed, n_elements=args.elements,
-                  target_ess=args.target_ess, max_steps=args.max_steps)
+    if args.jobs == 1:
+        cmp = compare(trial, MODELS, seed=args.seed, n_elements=args.elements,
+                      target_ess=args.target_ess, max_steps=args.max_steps)
+    else:
+        from bayesbeam.executor import fit_tasks, load_score, run_fits
+
+        with tempfile.TemporaryDirectory(prefix="bench-compare-") as tmp:
+            path = write_trial(trial, Path(tmp) / "trial.toml")
+            settings = {"n_elements": args.elements, "target_ess": args.target_ess,
+                        "max_steps": args.max_steps}
+            tasks = fit_tasks([path], MODELS, seed=args.seed, settings=settings)
+            outs = run_fits(tasks, Path(tmp) / "out", jobs=args.jobs, progress=False)
+            cmp = compare_scores([load_score(o.path) for o in outs])
+    # CPU time of this process only: with --jobs > 1 the fits' CPU is in the workers.
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     print(cmp)
     print()

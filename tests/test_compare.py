@@ -6,13 +6,17 @@ are simulated with the same 4 elements, so the model set contains the truth exac
 What the comparison claims does not depend on the record length or the mesh: the
 first two modes (11 and 71 Hz) are resolved at 256 Hz and by 4 elements (relative
 frequency errors 1e-5 and 1e-3, physics.md §4), and the damping laws differ in how
-mode 2 decays relative to mode 1 (physics.md §2), which one second of a release with
-white noise of 10 µm (tip amplitude 5 mm) shows clearly. Sampler budgets are small
-(target ESS 200, at most 1500 steps); the chains of the models with an unidentified
-direction (c_d or (eta, b) on data without them) do not meet emcee's 50-τ rule then,
-and the recorded NotConvergedWarning is expected. Their evidences still agree to
-~0.1 nat between seeds (measured), far inside the 1-nat tie threshold the verdict
-uses.
+modes 2 and 3 decay relative to mode 1 (physics.md §2), which one second of a release
+(tip amplitude 5 mm) shows. Sampler budgets are small (target ESS 200, at most 1500
+steps); chains that do not meet emcee's 50-τ rule then are recorded in the notes
+(NotConvergedWarning), which is expected here.
+
+Noise levels. Model recovery uses white noise of 2 µm (SNR 2500): with two damping
+parameters a viscous + Kelvin–Voigt mix can match any pair of first- and second-mode
+damping ratios, so a broad-kernel SH is told from it only by the third mode (199 Hz,
+aliased), which needs that SNR; at 10 µm the measured Δ log Z(SH - KV) on SH data
+ranged from -1.25 to +4 nats over seeds (b = 0.25 L), i.e. sometimes just outside
+the tie band. The narrow-kernel tie uses 0.1 mm (see narrow_trial).
 """
 
 import argparse
@@ -386,12 +390,15 @@ def test_bridge_evidence_agrees_with_nested_sampling():
 
 @pytest.mark.slow
 def test_model_recovery():
-    # Broad kernel b = 0.25 L (>= 0.05 L); each law gives ζ1 = 0.5 % (viscous alone 1 %).
+    # Broad kernel b = 0.25 L (>= 0.05 L); each law gives ζ1 = 0.5 % (viscous alone 1 %);
+    # noise 2 µm (module docstring). Measured margins: on viscous data the bigger models
+    # lose by 5-10 nats; on KV data SH ties or loses by up to 2 nats (its narrow-kernel
+    # limit is KV); on SH data KV loses by 35-55 nats.
     outcomes = []
     for gen in MODELS:
         for seed in (11, 12, 13):
-            c = compare(trial_of(gen, seed), MODELS, seed=seed, sensitivity_factors=(),
-                        **FAST)
+            c = compare(trial_of(gen, seed, noise=2e-6), MODELS, seed=seed,
+                        sensitivity_factors=(), n_loo_draws=500, **FAST)
             outcomes.append((gen, seed, c))
     hits = [gen in c.indistinguishable for gen, _, c in outcomes]
     assert np.mean(hits) >= 0.9, [(g, s, c.indistinguishable) for g, s, c in outcomes]

@@ -75,15 +75,19 @@ def _gamma(beam, zeta):
     return 2 * beam.rhoA * _w1(beam) * zeta  # ζ1 = gamma/(2 rhoA ω1), physics.md §2
 
 
-def _check_recovery(res, truth, interval_names):
+def _check_recovery(res, truth):
+    """Every parameter within 4 posterior sd of the truth, and the chain converged.
+
+    P(|z| > 4) = 6e-5 per parameter for a calibrated, near-Gaussian posterior. The
+    90 % intervals are checked where that is meaningful, across many trials
+    (test_coverage_of_90_percent_intervals): asking one trial's 4-5 parameters all to
+    lie inside their 90 % intervals fails for 35-40 % of seeds even when the posterior
+    is exactly right (0.9^4 = 0.66), and several such trials almost surely.
+    """
     zi = _z_and_interval(res, truth)
     assert set(zi) == set(truth)
-    for name, (z, inside) in zi.items():
-        # Every parameter within 4 posterior sd (P(|z| > 4) = 6e-5 for a calibrated
-        # Gaussian posterior), and the named ones inside their 90 % interval.
+    for name, (z, _) in zi.items():
         assert abs(z) < 4, (name, z)
-        if name in interval_names:
-            assert inside, (name, z)
     assert res.chain.converged
     assert res.chain.ess_min >= 300
 
@@ -103,7 +107,7 @@ def base(tmp_path_factory):
 
 def test_recovery_displacement_uniform(base):
     _, truth, res, _ = base
-    _check_recovery(res, truth, ("E", "gamma", "w0"))
+    _check_recovery(res, truth)
     assert res.settings["sampler_coordinates"] == "u"  # one law: no reparameterisation
 
 
@@ -140,7 +144,7 @@ def test_interrupted_fit_resumes_to_the_same_chain(base, tmp_path, monkeypatch):
     assert resumed.chain.n_steps_total == res.chain.n_steps_total
     # The checkpoint keeps the RNG state, so the continuation is the same chain.
     np.testing.assert_array_equal(resumed.chain.samples, res.chain.samples)
-    _check_recovery(resumed, truth, ("E", "gamma", "w0"))
+    _check_recovery(resumed, truth)
 
 
 @pytest.mark.slow
@@ -256,7 +260,7 @@ def test_recovery_other_quantities_and_stamps(quantity, model, jitter):
     tr, truth = _trial(model, params, quantity=quantity, jitter=jitter, seed=7)
     assert tr.is_uniform is (not jitter)
     res = _fit(tr, model, seed=2)
-    _check_recovery(res, truth, ("E",) + tuple(params))
+    _check_recovery(res, truth)
 
 
 @pytest.mark.slow
@@ -272,7 +276,9 @@ def test_coverage_of_90_percent_intervals():
         tr, truth = _trial("viscous", params, seed=100 + k, E=E, noise=2e-5)
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            res = _fit(tr, "viscous", seed=k)
+            # 16 walkers (>= 4 ndim) halve the cost; ESS >= 300 is still required.
+            res = _fit(tr, "viscous", seed=k, nwalkers=16)
+            assert res.chain.converged and res.chain.ess_min >= 300
         for name, (_, inside) in _z_and_interval(res, truth).items():
             hits[name].append(inside)
     pooled = np.mean([h for v in hits.values() for h in v])
