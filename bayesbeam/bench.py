@@ -24,6 +24,7 @@ from scipy.integrate import solve_ivp
 
 from bayesbeam.beam import Beam
 from bayesbeam.forward import Forward
+from bayesbeam.propagate import single_blas_thread
 
 __all__ = ["bench_beam", "bench_params", "format_bench", "run_bench"]
 
@@ -117,6 +118,7 @@ def _rk45_one(theta: np.ndarray, n_elements: int, n_samples: int) -> float:
     return elapsed
 
 
+@single_blas_thread
 def run_bench(
     *,
     n_elements: int = 16,

@@ -128,6 +128,13 @@ def _build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--repeats", type=int, default=7)
     common(sp)
     sp.set_defaults(func=_cmd_bench)
+
+    # Commands of the later stages live in their own modules (each imports its heavy
+    # dependencies only when run).
+    from bayesbeam import cli_compare, cli_demo, cli_diagnose, cli_fit, cli_report
+
+    for mod in (cli_fit, cli_compare, cli_diagnose, cli_report, cli_demo):
+        mod.register(sub)
     return p
 
 

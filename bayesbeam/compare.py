@@ -397,11 +397,6 @@ def evaluate(
             fit_seconds = float(result.settings.get("total_seconds", 0.0))
             extra_calls = int(result.chain.n_calls)
         chain = result.chain
-        if not chain.converged:
-            notes.append(
-                "sampler did not meet its convergence criteria: the evidence error does not "
-                "cover an unconverged chain"
-            )
         # Evidence: bridge sampling on the emcee output; Laplace as a cross-check.
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xB51D6E]))
         n_bridge = (chain.nsteps - chain.nsteps // 2) * chain.nwalkers
@@ -442,6 +437,11 @@ def evaluate(
                                     category=UserWarning)
             loo_res = loo(loglik)
         waic_res = waic(loglik)
+    if not chain.converged and not any(n.startswith("NotConvergedWarning") for n in notes):
+        notes.append(
+            "the chain did not meet its convergence criteria: the evidence error does not "
+            "cover an unconverged chain"
+        )
     # Largest log-likelihood: LOO draws, MAP and the highest-posterior samples.
     cands = [ll_flat.sum(axis=1)]
     top = np.argsort(chain.flat_log_prob)[::-1][: max(0, int(n_top))]
@@ -1051,6 +1051,9 @@ class Comparison:
     def plot(self, path: str | Path, *, dpi: int = 120) -> Path:
         """Plot Δ log evidence (± 2 s.e.) and paired ELPD-LOO differences (± 2 s.e.).
 
+        Axes switch to a symmetric-log scale (linear within a few nats of zero) when
+        some difference is much larger than the tie band.
+
         Parameters
         ----------
         path : str or pathlib.Path
@@ -1073,6 +1076,11 @@ class Comparison:
         ax1.axvspan(-self.threshold, 0.0, color="0.9", label=f"tie threshold ({self.threshold:g})")
         ax1.errorbar(dz, y, xerr=2 * np.nan_to_num(ez), fmt="o", color="C0", capsize=3)
         ax1.axvline(0.0, color="0.4", lw=0.8)
+        # Differences of hundreds of nats beside ties of a fraction of one: symlog keeps
+        # the band around zero linear and readable.
+        lin1 = max(2.0, 2.0 * self.threshold)
+        if np.nanmax(np.abs(dz), initial=0.0) > 10 * lin1:
+            ax1.set_xscale("symlog", linthresh=lin1)
         ax1.set_xlabel("log Z - log Z_best [nats]  (± 2 s.e.)")
         ax1.set_title("evidence")
         ax1.legend(loc="lower left", fontsize="small")
@@ -1080,8 +1088,13 @@ class Comparison:
         se = np.array(self.delta_elpd_se, dtype=float)
         ax2.errorbar(de, y, xerr=2 * np.nan_to_num(se), fmt="s", color="C1", capsize=3)
         ax2.axvline(0.0, color="0.4", lw=0.8)
+        lin2 = max(2.0, 2.0 * float(np.nanmedian(se))) if se.size else 2.0
+        if np.nanmax(np.abs(de), initial=0.0) > 10 * lin2:
+            ax2.set_xscale("symlog", linthresh=lin2)
         ax2.set_xlabel(f"ELPD-LOO - ELPD({self.best_elpd}) [nats]  (± 2 s.e.)")
         ax2.set_title("PSIS-LOO")
+        for ax in (ax1, ax2):
+            ax.margins(x=0.08)
         ax1.set_yticks(y, list(self.names))
         fig.savefig(path, dpi=dpi)
         return path

@@ -18,49 +18,68 @@ cause                     model extension (parameters)
 
 Procedure of one round (current model M)
 ----------------------------------------
-1. **Screen** (cheap, every candidate X): the MAP of M+X from several starts: the
-   current MAP with X at a neutral value (so M+X ⊇ M is at least as good), and a
-   physics-based start in which the structural parameter is chosen to reproduce the
-   measured f2/f1, E the measured f1, and the damping coefficients the measured decay
-   rates of modes 1 and 2 (:func:`bayesbeam.signatures.band_modal_estimate`). The
-   statistic is the gain in maximum log-likelihood ``Δχ²/2 = max log L(M+X) - max
-   log L(M)``; the Laplace evidence (:func:`bayesbeam.evidence.laplace_evidence`) is
-   recorded where the MAP is interior. Adding a parameter multiplies the evidence by
-   its Occam factor (≤ 1), so Δ log Z ≲ Δχ²/2: a candidate with ``Δχ²/2 <=
-   SCREEN_THRESHOLD`` (2 nats, 1 nat below the significance threshold for safety)
-   cannot be significant and is not sampled. The MAPs of the passing candidates also
-   restart the optimisation of M (a better optimum of M found this way replaces its
-   MAP, so that a poor local optimum of M cannot make every extension look good).
-2. **Confirm** (expensive): emcee from the MAP, bridge-sampling evidence with its
-   Monte-Carlo error and PSIS-LOO (:func:`bayesbeam.compare.evaluate`) for M and for
-   the ``confirm_top`` best-screened candidates (plus any other within
+1. **Screen** (cheap, every candidate X): the MAP of M+X from several starts, each
+   refined by an E scan, L-BFGS-B and a few damped Newton steps with a
+   finite-difference Hessian (these posteriors are narrow curved ridges on which
+   L-BFGS-B alone stops several nats short). Starts: the current MAP with X's
+   parameters at their neutral values (the prior's lower end; ``g = 0``, ``rho = 0``,
+   a stiff root spring), so M+X ⊇ M is at least as good; and physics-based starts
+   from the data's modal estimates (:func:`bayesbeam.signatures.damped_sinusoids`):
+   a structural parameter solved so that the model's f2/f1 equals the measured one,
+   E so that f1 matches, the damping coefficients from the measured decay rates of
+   modes 1 and 2 (non-negative least squares on σ_n ≈ C_nn/2), and drag or friction
+   at 0.25-2 times the measured ζ1 (:meth:`~bayesbeam.nonlinear.NonlinearForward.
+   equivalent_damping` at the measured first-mode amplitude). The statistic is the
+   gain in maximum log-likelihood ``Δχ²/2 = max log L(M+X) - max log L(M)``; the
+   Laplace Δ log Z (:func:`bayesbeam.evidence.laplace_evidence`) is recorded where
+   both MAPs are interior. Adding a parameter multiplies the evidence by its Occam
+   factor (≤ 1), so Δ log Z ≲ Δχ²/2: a candidate with ``Δχ²/2 <= SCREEN_THRESHOLD``
+   (2 nats, 1 nat below the significance threshold for safety) cannot be
+   significant and is not sampled. The MAPs of the passing candidates also restart
+   the optimisation of M (a better optimum of M found this way replaces its MAP, so
+   that a poor local optimum of M cannot make every extension look good).
+2. **Confirm** (expensive): emcee from the MAP (walkers in a ball shaped by the
+   Laplace covariance, differential-evolution moves), then bridge-sampling evidence
+   with its Monte-Carlo error and PSIS-LOO (:func:`bayesbeam.compare.evaluate`) for M
+   and for the ``confirm_top`` best-screened candidates (plus any other within
    ``SCREEN_TIE`` = 3 nats of the best screen value).
 3. **Decide**. ``Δ = log Z(M+X) - log Z(M)`` with ``err = sqrt(err_M² + err_X²)``.
    X is *significant* when ``Δ - 2 err > SIGNIFICANCE`` (3 nats: a Bayes factor above
-   20, "strong" on Kass & Raftery's 1995 scale). Among the significant candidates the
-   best (largest Δ) and all those whose evidence is within ``max(2 err, TIE)`` of
-   it (``TIE`` = 1 nat, Kass & Raftery: "not worth more than a bare mention"; the
-   same band as :mod:`bayesbeam.compare`) form a set the data cannot separate: the
-   one with fewest parameters is named (parsimony; by construction their
-   evidences do not distinguish them) and the others are listed as ``equivalent``.
-   Nothing significant → the round's answer is ``"none"`` and the diagnosis stops.
+   20, "strong" on Kass & Raftery's 1995 scale). Two candidates count as *separated*
+   only when one's evidence beats the other's by the same strength, more than
+   ``max(2 err, TIE)`` with ``TIE`` = 3 nats. The best significant candidate and all
+   significant ones not separated from it form a set the data cannot tell apart: the
+   one with fewest parameters is named (parsimony; by construction their evidences
+   do not distinguish them; ties broken by evidence) and the others are listed as
+   ``equivalent``. Nothing significant → the round's answer is ``"none"`` and the
+   diagnosis stops. Δ ELPD (PSIS-LOO, paired se; Vehtari et al. 2017) is reported
+   beside it, and a note is made when it points the other way beyond 2 se.
 4. **Tie to a signature**: the residual signature of M that points the same way is
    reported (:func:`signature_support`): f2/f1 shift for the structural causes,
    decay rate vs amplitude for ``amplitude_damping``, Ljung–Box whiteness and lag-1
    autocorrelation for ``ar1_noise``, mean / low-frequency residual for
    ``sensor_offset``, frequency dependence of the modal damping for ``kv``/``sh``.
-5. **Measure the gain**: Δ log Z ± err, Δ ELPD ± se (paired, Vehtari et al. 2017),
-   RMS residual and 90 % predictive coverage before and after, and how the physical
-   parameters moved (posterior mean ± sd before and after).
+5. **Measure the gain**: Δ log Z ± err, Δ ELPD ± se, RMS residual and 90 %
+   predictive coverage before and after, and how the physical parameters moved
+   (posterior mean ± sd before and after).
 
 Then M ← M+X and the next round starts, up to ``max_rounds`` (default 3).
 
+Cost: each screen is one MAP search (0.2-2 s for a 512-sample record and 8 elements
+on one core; 5-15 s with amplitude damping, whose forward model is ~5x slower); each
+confirmation one emcee run plus bridge sampling (5-20 s at the test budget of 400
+steps x 24 walkers). A round costs about 8 screens and 2-4 confirmations.
+
 Known limits: a tip mass and a root spring have exactly the same natural frequencies
 when μ = m_t/(rhoA L) = 1/κ (physics.md §3 gives the same frequency equation for
-both); only the mode shapes (hence the modal amplitudes of a release from a static
-tip load) tell them apart, so with free modal amplitudes (``initial='modes:K'``)
-they are equivalent by construction. A root spring that lowers f1 by a few per cent
-and a small stiffness gradient are also nearly equivalent on one sensor's record.
+both); only the mode shapes (hence the modal amplitudes of a release or a tap) tell
+them apart, so with free modal amplitudes (``initial='modes:K'``) they differ only
+through the modal damping. With only two modes in the record, a broad-kernel SH and
+viscous + KV damping both fit two decay rates exactly, and a root spring and a
+stiffness gradient both fit f2/f1: the third mode separates them (visible in
+acceleration records and in displacement records of a tap, not of a release). A
+narrow-kernel SH is KV (physics.md §2), so ``sh`` is never separable from ``kv``
+when KV is the cause.
 """
 
 from __future__ import annotations
@@ -87,6 +106,7 @@ __all__ = [
     "Diagnosis",
     "DiagnoseError",
     "Round",
+    "describe_signatures",
     "diagnose",
     "signature_support",
 ]
@@ -563,6 +583,7 @@ class _Engine:
             for k, e in enumerate(est[:2], start=1):
                 if e is not None:
                     feats[f"f{k}"] = e.frequency
+                    feats[f"a{k}"] = e.amplitude
                     if e.decay_rate > 0:
                         feats[f"sigma{k}"] = e.decay_rate
             if est[0] is None:
@@ -641,11 +662,17 @@ class _Engine:
         if lin is None:
             return []
         base = {n: warm.get(n, neutral[n]) for n in names}
+        # From a warm start only the parameters it lacks need physics-based values.
+        new = {n for n in names if n not in warm}
         struct = [n for n in names if n in ("tip_mass", "root_spring", "stiffness_gradient")]
-        variants: list[dict[str, float]] = [dict(base)]
+        variants: list[dict[str, float]] = []
+        if not warm or new & {"gamma", "c_d", "eta", "b"}:
+            variants.append(dict(base))
         if "f2" in feats:
             target = feats["f2"] / feats["f1"]
             for s in struct:
+                if s not in new:
+                    continue
                 v = dict(base)
                 for other in struct:
                     v[other] = neutral[other]
@@ -674,6 +701,9 @@ class _Engine:
             v["E"] = float(np.clip(E, *pb.priors["E"].bounds))
             _set_damping(pb, lin, v, feats)
             rows.append([v[n] for n in names])
+        if "drag" in new and "a1" in feats and "sigma1" in feats:
+            v0 = variants[0] if variants else base
+            rows += [[v[n] for n in names] for v in _amplitude_starts(pb, lin, v0, feats)]
         return rows
 
     # -- sampling and scoring ---------------------------------------------------------
@@ -766,7 +796,7 @@ def _neutral(pb: Any, name: str) -> float:
     """Return a value at which an extension's parameter does (almost) nothing."""
     lo, hi = pb.priors[name].bounds
     L = pb.trial.beam.length
-    table = {"stiffness_gradient": 0.0, "rho": 0.3, "offset": 0.0, "b": 0.3 * L, "w0": 0.0}
+    table = {"stiffness_gradient": 0.0, "rho": 0.0, "offset": 0.0, "b": 0.3 * L, "w0": 0.0}
     if name in table:
         return table[name]
     if name == "root_spring":
@@ -803,6 +833,43 @@ def _fwd_row(pb: Any, lin: Any, v: Mapping[str, float]) -> np.ndarray:
     P = pb.forward_params(X)[0]
     vals = dict(zip(pb.forward.param_names, P, strict=True))
     return np.array([vals[n] for n in lin.param_names], dtype=float)
+
+
+def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
+                      feats: Mapping[str, float]) -> list[dict[str, float]]:
+    """Return starts whose drag (or friction) damps mode 1 about as much as the data show.
+
+    The tip amplitude of mode 1 comes from its measured amplitude at the sensor
+    (divided by ω1 per time derivative, scaled by the mode shape's tip/sensor ratio);
+    :meth:`bayesbeam.nonlinear.NonlinearForward.equivalent_damping` converts it to
+    the damping ratio per unit drag and per unit friction. Starts: drag alone at 0.5
+    and 2 times the measured ζ1, friction alone at 0.25 and 1 times it.
+    """
+    fwd = pb.forward
+    if not hasattr(fwd, "equivalent_damping"):
+        return []
+    th = _fwd_row(pb, lin, v)
+    om, _, phi = lin.modal_system(th[None])
+    phi1 = np.asarray(phi)[..., 0].reshape(-1)
+    ratio = abs(float(lin.fe.tip @ phi1) / float(lin.sensor @ phi1))
+    order = {"displacement": 0, "velocity": 1, "acceleration": 2}[pb.trial.quantity]
+    amp = feats["a1"] / om[0, 0] ** order * ratio
+    X = np.array([[v[n] for n in pb.names]])
+    P = pb.forward_params(X)[0]
+    P[list(fwd.param_names).index("drag")] = 1.0
+    P[list(fwd.param_names).index("friction")] = 1.0
+    zd, zf = fwd.equivalent_damping(P[None], amp)
+    zeta1 = feats["sigma1"] / (2 * np.pi * feats["f1"])
+    out = []
+    for name, per_unit, factors in (("drag", zd[0], (0.5, 2.0)), ("friction", zf[0], (0.25, 1.0))):
+        if not (np.isfinite(per_unit) and per_unit > 0):
+            continue
+        lo, hi = pb.priors[name].bounds
+        for fac in factors:
+            w = dict(v)
+            w[name] = float(np.clip(fac * zeta1 / per_unit, lo * 1.01, hi * 0.99))
+            out.append(w)
+    return out
 
 
 def _root_on_ratio(pb: Any, lin: Any, v: Mapping[str, float], name: str, u_lo: float,
@@ -1029,6 +1096,8 @@ def diagnose(
 
 def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
            confirm_top: int, log: Callable[[str], None]) -> Round:
+    from bayesbeam.criteria import CriteriaError, elpd_difference
+
     t_round = time.perf_counter()
     model = cur.problem.model
     scores: dict[str, dict[str, Any]] = {}
@@ -1081,8 +1150,6 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
             sc = eng.confirm(st)
             d = sc.log_evidence - sc_cur.log_evidence
             err = math.hypot(sc.log_evidence_err, sc_cur.log_evidence_err)
-            from bayesbeam.criteria import CriteriaError, elpd_difference
-
             try:
                 de, dse = elpd_difference(sc.loo, sc_cur.loo)
             except CriteriaError as e:
@@ -1090,6 +1157,10 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
                 de, dse = math.nan, math.nan
             scores[c].update(confirmed=True, delta=d, err=err, elpd=de, elpd_se=dse,
                              significant=bool(d - 2 * err > SIGNIFICANCE))
+            if math.isfinite(de) and d - 2 * err > SIGNIFICANCE and de < -2 * dse:
+                eng.notes.append(
+                    f"round {index}: {c} raises the evidence by {d:.1f} nats but lowers ELPD by "
+                    f"{-de:.1f} ± {dse:.1f}; check the LOO notes (Pareto k) of both models")
     cand = tuple(
         CandidateScore(
             cause=c, model=s["model"], delta_chi2_half=float(s["gain"]),

@@ -27,6 +27,7 @@ from scipy.special import logsumexp
 from bayesbeam.models import Model, parse_model
 from bayesbeam.priors import HalfNormal, LogNormal, LogUniform
 from bayesbeam.problem import BETA1, Problem, first_frequency
+from bayesbeam.propagate import single_blas_thread
 from bayesbeam.results import FitResult, make_provenance
 from bayesbeam.sampling import Chain, init_walkers, run_emcee
 from bayesbeam.trial import Trial
@@ -420,6 +421,7 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     return opts
 
 
+@single_blas_thread
 def fit(
     trial: Trial,
     model: str | Model,

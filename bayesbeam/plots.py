@@ -279,8 +279,9 @@ def plot_residual_spectrum(
     path : str or pathlib.Path
         Image file.
     mode_freqs_hz : array_like, optional
-        Natural frequencies of the fitted model in Hz, marked as vertical lines
-        (those below the Nyquist frequency).
+        Natural frequencies of the fitted model in Hz, marked as vertical lines:
+        dashed below the Nyquist frequency, dotted at the aliases of those up to
+        twice the sampling rate.
     dpi : int, default 120
 
     Returns
@@ -307,11 +308,19 @@ def plot_residual_spectrum(
     white = float(np.std(v)) * np.sqrt(2 * dt)
     ax.axhline(white, color="0.5", ls=":", lw=0.9, label="white noise of the same RMS")
     if mode_freqs_hz is not None:
+        fs = 1.0 / dt
         fm = np.asarray(mode_freqs_hz, dtype=float).ravel()
-        fm = fm[np.isfinite(fm) & (fm > 0) & (fm < 0.5 / dt)]
-        for i, fi in enumerate(fm):
+        fm = fm[np.isfinite(fm) & (fm > 0)]
+        for i, fi in enumerate(fm[fm < 0.5 * fs]):
             ax.axvline(fi, color="tab:red", ls="--", lw=0.8,
                        label="model modal frequencies" if i == 0 else None)
+        # Modes above the Nyquist frequency appear folded back (sampling aliases);
+        # mark those of the next few Nyquist zones so their peaks are not misread.
+        high = fm[(fm >= 0.5 * fs) & (fm < 2.0 * fs)]
+        for i, fi in enumerate(high):
+            r = fi % fs
+            ax.axvline(min(r, fs - r), color="tab:orange", ls=":", lw=0.8,
+                       label="aliases of higher modes" if i == 0 else None)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel(f"amplitude spectral density [{unit}/√Hz]")
     ax.set_xlim(0, 0.5 / dt)

@@ -592,7 +592,7 @@ def decay_rate_vs_amplitude(
     k = int(math.ceil(2.0 / (cut * dt)))
     if t.size - 2 * k < 16:
         return None
-    t, y = t[k:-k] - t[k], y[k:-k]
+    t, y = t[k:-k], y[k:-k]  # time still from the first sample: c and A0 refer to it
     freqs = np.array([float(f_center)] + [float(f) for f in other
                                            if 0 < f < cut and abs(f / f_center - 1) > 0.3])
     glob = damped_sinusoids(t, y, freqs, min_snr=0.0)

@@ -7,7 +7,7 @@ Trial (issue 3, physics.md §4): the source study's single-ply beam
 simulated from that same model (so every fit is well specified), all with the same
 damping of the first mode: viscous ζ1 = 1 %, plus Kelvin–Voigt ζ1 = 1 % or spatial
 hysteresis ζ1 ≈ 1 % with kernel width b = 1 cm. 16 elements, seed 0, default sampler
-settings, ``target_ess=1000``.
+settings, ``target_ess=1000``, BLAS limited to one thread (``--blas-threads``).
 
 Reference: the seed-style workflow (Nelder–Mead on solve_ivp RK45) needs about an hour
 (3600 s) for a two-parameter point estimate at 16 elements (physics.md §4). That figure
@@ -20,6 +20,7 @@ Run: ``.venv/bin/python studies/bench_fit.py [--models viscous,viscous+kv] [--js
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import time
@@ -32,6 +33,11 @@ from bayesbeam.fit import fit
 from bayesbeam.problem import BETA1
 from bayesbeam.sampling import NotConvergedWarning
 from bayesbeam.simulate import simulate_trial
+
+try:  # optional: limits BLAS threads at run time
+    from threadpoolctl import threadpool_limits
+except ImportError:  # pragma: no cover - then BLAS keeps its default thread count
+    threadpool_limits = None
 
 #: physics.md §4: Nelder–Mead + RK45 point estimate of (E, gamma) at 16 elements.
 SEED_WORKFLOW_SECONDS = 3600.0
@@ -131,10 +137,18 @@ def main(argv: list[str] | None = None) -> list[dict]:
     ap.add_argument("--models", default=",".join(MODELS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--elements", type=int, default=16)
+    ap.add_argument("--blas-threads", type=int, default=1,
+                    help="BLAS threads (default 1; 0 keeps the library default)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    rows = [run_one(m, seed=args.seed, n_elements=args.elements)
-            for m in args.models.split(",")]
+    # The batched forward model multiplies many small matrices; BLAS threads only add
+    # overhead there, and on a shared 2-core machine they made it 2.3x slower.
+    limit = (threadpool_limits(args.blas_threads)
+             if threadpool_limits is not None and args.blas_threads > 0
+             else contextlib.nullcontext())
+    with limit:
+        rows = [run_one(m, seed=args.seed, n_elements=args.elements)
+                for m in args.models.split(",")]
     if args.json:
         print(json.dumps(rows, indent=2))
         return rows

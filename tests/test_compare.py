@@ -22,7 +22,6 @@ the tie band. The narrow-kernel tie uses 0.1 mm (see narrow_trial).
 import argparse
 import json
 import math
-import warnings
 
 import numpy as np
 import pytest
@@ -372,12 +371,10 @@ def test_bridge_evidence_agrees_with_nested_sampling():
     def loglike(u):
         return float(problem.log_likelihood(u[None])[0])
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        ns = dynesty.NestedSampler(loglike, problem.priors.from_unit_cube, problem.ndim,
-                                   nlive=500, bound="multi", sample="unif",
-                                   rstate=np.random.default_rng(5))
-        ns.run_nested(dlogz=0.01, print_progress=False)
+    ns = dynesty.NestedSampler(loglike, problem.priors.from_unit_cube, problem.ndim,
+                               nlive=500, bound="multi", sample="unif",
+                               rstate=np.random.default_rng(5))
+    ns.run_nested(dlogz=0.01, print_progress=False)
     logz_ns, err_ns = float(ns.results.logz[-1]), float(ns.results.logzerr[-1])
     assert err_ns < 0.2  # sqrt(H/nlive) = sqrt(7/500) = 0.12
     # The tolerance: 0.5 nats (about 4 nested-sampling standard errors).

@@ -1,0 +1,161 @@
+"""What the uniform-beam model gets wrong on the public measured data, and why.
+
+Data (not in the repository; ``../shared/data/real`` beside it, each set with its
+PROVENANCE.md): ``enes-alu-release`` (an aluminium strip 50.8 x 2 mm released by hand
+at free lengths 30/40/50/60 cm; ADXL357 acceleration 6 cm from the tip, software time
+stamps, NOT uniform) and ``hrshm-steel-impulse`` (a steel beam 759 x 50.66 x 5.14 mm
+struck by a hammer; IEPE acceleration near the tip, 1651.6 Hz).
+
+For each record, with the public API only:
+
+1. load it (:func:`bayesbeam.realdata.load_enes` / :func:`~bayesbeam.realdata.load_hrshm`;
+   the window starts 0.1 s after the release/impact peak), cut it to a few seconds and
+   resample it to a uniform 512 Hz (anti-alias filter, :meth:`bayesbeam.trial.Trial.resample`);
+2. take the uniform-beam model ``viscous+kv`` with free amplitudes of the modes below
+   0.8 x Nyquist (``initial='modes:K'``: the window starts in free vibration);
+3. :func:`bayesbeam.diagnose.diagnose` it: the baseline's residual signatures (what it
+   gets wrong), the causes named round by round with their gains (Δ log Z ± error,
+   Δ ELPD, RMS residual and predictive coverage before/after, parameter moves) and the
+   final model.
+
+Caveat: with free modal amplitudes a tip mass and a root spring have the same natural
+frequencies (physics.md §3 gives one frequency equation for both, μ = 1/κ), so only
+the modal damping can tell them apart; expect them to be reported as equivalent.
+
+Run: ``python studies/real_data.py [--outdir DIR] [--seed S]`` (all five records,
+12 elements, 3 s windows; tens of minutes), or ``--small`` (one record, 1 s, 6
+elements, tiny sampler budget; about a minute). Writes ``real_data.json`` and
+``real_data.md`` into ``outdir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from bayesbeam.diagnose import describe_signatures, diagnose
+from bayesbeam.problem import first_frequency
+from bayesbeam.realdata import load_enes, load_hrshm
+
+#: The records: (label, loader, loader arguments).
+RECORDS = (
+    ("enes-alu-30cm", "enes", {"length_cm": 30}),
+    ("enes-alu-40cm", "enes", {"length_cm": 40}),
+    ("enes-alu-50cm", "enes", {"length_cm": 50}),
+    ("enes-alu-60cm", "enes", {"length_cm": 60}),
+    ("hrshm-steel", "hrshm", {}),
+)
+#: Full study settings.
+FULL = {"records": [r[0] for r in RECORDS], "duration": 3.0, "dt": 1 / 512, "n_elements": 12,
+        "diagnose": {"max_steps": 1500, "target_ess": 300.0, "confirm_top": 3}}
+#: Small: one record, seconds of sampling (for tests; posteriors not converged).
+SMALL = {"records": ["enes-alu-40cm"], "duration": 1.0, "dt": 1 / 256, "n_elements": 6,
+         "diagnose": {"max_steps": 150, "min_steps": 100, "target_ess": 30.0, "nwalkers": None,
+                      "confirm_top": 2, "loo_draws": 100, "max_rounds": 2}}
+#: Uniform-cantilever frequency ratios f_n/f1 (physics.md §4: (β_n L / β_1 L)²).
+RATIOS = (1.0, 6.2669, 17.5475, 34.3861)
+
+
+def load(label: str, duration: float, dt: float):
+    """Load one record, cut to ``duration`` s and resample to step ``dt`` s."""
+    spec = {r[0]: r for r in RECORDS}[label]
+    if spec[1] == "enes":
+        trial = load_enes(spec[2]["length_cm"], 0, duration=duration + 0.2)
+    else:
+        trial = load_hrshm(duration=duration + 0.2)
+    trial = trial.resample(dt)
+    t0 = float(trial.times[0])
+    return trial.window(t0, t0 + duration)
+
+
+def n_modes(trial) -> int:
+    """Modes of a uniform cantilever (ratios from the first spectral peak) below 0.8 Nyquist."""
+    f1 = first_frequency(trial.times, trial.values)
+    nyq = 0.5 / trial.dt
+    return max(1, sum(1 for r in RATIOS if r * f1 < 0.8 * nyq))
+
+
+def summarise(label: str, d, seconds: float) -> str:
+    """Markdown lines for one record."""
+    lines = [f"## {label}", "", f"Baseline `{d.baseline}` → final model `{d.final_model}` "
+             f"({seconds:.0f} s).", "", "What the uniform-beam model gets wrong:", ""]
+    if d.signatures_before is not None:
+        lines += [f"- {s}" for s in describe_signatures(d.signatures_before)]
+    lines += ["", "Named causes: " + (", ".join(d.named_causes) or "none"), ""]
+    for r in d.rounds:
+        eq = f" (equivalent: {', '.join(r.equivalent)})" if r.equivalent else ""
+        lines.append(
+            f"- round {r.index}: **{r.cause}**{eq}: Δ log Z = {r.delta_log_evidence:.1f} ± "
+            f"{r.delta_log_evidence_err:.1f}, Δ ELPD = {r.delta_elpd:.1f} ± {r.delta_elpd_se:.1f}, "
+            f"RMS {r.rms_before:.3g} → {r.rms_after:.3g} m/s², coverage90 "
+            f"{r.coverage_before:.2f} → {r.coverage_after:.2f}; {r.signature}"
+        )
+        for k, v in r.parameter_moves.items():
+            b, a = v["before"], v["after"]
+            if math.isfinite(b[0]) or k in ("tip_mass", "root_spring", "stiffness_gradient",
+                                            "rho", "offset", "drag", "friction"):
+                lines.append(f"    - {k}: {b[0]:.4g} ± {b[1]:.2g} → {a[0]:.4g} ± {a[1]:.2g}")
+    if d.notes:
+        lines += ["", f"{len(d.notes)} reliability note(s), e.g.: {d.notes[0][:160]}"]
+    return "\n".join(lines) + "\n"
+
+
+def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
+         progress: bool = True) -> dict[str, Any]:
+    """Run the study; print and write its findings.
+
+    Parameters
+    ----------
+    small : bool
+        One record, 1 s, tiny budget (for tests).
+    outdir : path, optional
+        Output folder (default ``real-data`` or ``real-data-small``).
+    seed : int
+        Seed of every diagnosis.
+    progress : bool
+        Progress lines on stderr.
+
+    Returns
+    -------
+    dict
+        ``results`` (record → :meth:`bayesbeam.diagnose.Diagnosis.to_json_dict`),
+        ``markdown`` and ``paths``.
+    """
+    cfg = SMALL if small else FULL
+    outdir = Path(outdir or ("real-data-small" if small else "real-data"))
+    outdir.mkdir(parents=True, exist_ok=True)
+    log = (lambda s: print(s, file=sys.stderr, flush=True)) if progress else None
+    results: dict[str, Any] = {}
+    md = ["# Diagnosis of the public measured data sets", ""]
+    for label in cfg["records"]:
+        trial = load(label, cfg["duration"], cfg["dt"])
+        k = n_modes(trial)
+        if log:
+            log(f"{label}: {trial.times.size} samples, initial modes:{k}")
+        t0 = time.perf_counter()
+        kw = dict(cfg["diagnose"])
+        d = diagnose(trial, "viscous+kv", seed=seed, n_elements=cfg["n_elements"],
+                     initial=f"modes:{k}", progress=log, **kw)
+        seconds = time.perf_counter() - t0
+        results[label] = {**d.to_json_dict(), "initial": f"modes:{k}", "seconds_total": seconds}
+        text = summarise(label, d, seconds)
+        md.append(text)
+        print(text, flush=True)
+    (outdir / "real_data.json").write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+    (outdir / "real_data.md").write_text("\n".join(md), encoding="utf-8")
+    return {"results": results, "markdown": "\n".join(md),
+            "paths": [outdir / "real_data.json", outdir / "real_data.md"]}
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--small", action="store_true", help="one short record, tiny budget")
+    ap.add_argument("--outdir", type=Path, default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    main(small=a.small, outdir=a.outdir, seed=a.seed)
