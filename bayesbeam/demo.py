@@ -99,6 +99,9 @@ DIAGNOSIS_SETTINGS: dict[str, Any] = {
     "loo_draws": 200,
 }
 
+#: What ``plots=...`` of :func:`run_replication` draws figures for.
+_FIGURES = {"first": "the first trial of each beam", "all": "every trial", "none": "no trial"}
+
 #: Parameters shown in the summary table (E in GPa; the rest SI).
 _SHOWN = ("gamma", "c_d", "eta", "b")
 
@@ -663,7 +666,9 @@ def run_replication(
     record = {
         "table_text": table,
         "conclusions": conclusions,
-        "settings_text": "Fit settings: " + ", ".join(f"{k}={v}" for k, v in base.items()),
+        "settings_text": "Fit settings: " + ", ".join(
+            f"{k}={v}" for k, v in base.items() if k != "plots")
+        + f"; figures for {_FIGURES[plots]}.",
         "rows": [{**r, "params": {k: list(v) for k, v in r["params"].items()}} for r in rows],
         "models": list(models),
         "seed": seed,

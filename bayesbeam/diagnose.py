@@ -425,8 +425,9 @@ def describe_signatures(sig: Any) -> list[str]:
     out = [f"RMS residual {sig.rms_residual:.3g} ({100 * sig.rms_residual / sig.rms_data:.1f} % "
            f"of the data's RMS); 90 % predictive coverage {sig.coverage90:.2f}."]
     white = "white" if sig.white else "NOT white"
-    out.append(f"Residual {sig.whiteness_series} are {white} (Ljung–Box p = "
-               f"{sig.ljung_box_p:.2g}, lag-1 autocorrelation {sig.lag1:.2f}).")
+    what = "Residuals" if sig.whiteness_series == "residuals" else "AR(1) innovations"
+    out.append(f"{what} are {white} (Ljung–Box p = {sig.ljung_box_p:.2g}; lag-1 "
+               f"autocorrelation of the residuals {sig.lag1:.2f}).")
     if math.isfinite(sig.ratio_shift):
         out.append(f"f2/f1: data {sig.ratio_data:.4f}, model {sig.ratio_model:.4f} "
                    f"({100 * sig.ratio_shift:+.2f} ± {100 * sig.ratio_shift_err:.2f} %).")

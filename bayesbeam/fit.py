@@ -221,6 +221,8 @@ def laplace_covariance(problem: Problem, u: np.ndarray, h: float = 1e-4) -> np.n
             for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
                 pts.append(u + si * eye[i] + sj * eye[j])
     v = problem.log_prob(np.array(pts))
+    if not np.all(np.isfinite(v)):
+        return None  # a stencil point left the prior support (MAP on a bound)
     H = np.zeros((d, d))
     k = 1
     for i in range(d):

@@ -228,7 +228,7 @@ note = "released at rest from a static tip deflection read off a ruler (nearest 
 [meta]
 beam = "{spec.name}"
 trial = {j + 1}
-synthetic = true
+origin = "synthetic: studies/make_data.py; generating values in truth.toml"
 generator = "studies/make_data.py"
 sampling_rate_hz = {FS!r}
 clamp = "bench vise (compliance unknown)"

@@ -45,13 +45,6 @@ from bayesbeam.priors import LogUniform, PriorSet, Uniform
 from bayesbeam.simulate import simulate_signal, simulate_trial
 from bayesbeam.trial import write_trial
 
-# fit.laplace_covariance forms inf - inf when the MAP lies on a prior bound (c_d or
-# eta at their lower limits on data without that law) and then falls back to a
-# default walker ball; numpy's RuntimeWarning about it is harmless here.
-pytestmark = pytest.mark.filterwarnings(
-    "ignore:invalid value encountered in scalar add:RuntimeWarning"
-)
-
 BEAM = Beam.rectangular(0.3048, 0.127, 0.72e-3, 0.021, E=6.2e10)
 L = BEAM.length
 E = 6.2e10
