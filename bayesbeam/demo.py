@@ -50,6 +50,7 @@ __all__ = [
     "DEMO_SETTINGS",
     "DIAGNOSIS_SETTINGS",
     "MODELS",
+    "QUICK_DIAGNOSIS",
     "QUICK_SETTINGS",
     "DemoError",
     "Replication",
@@ -101,6 +102,11 @@ DIAGNOSIS_SETTINGS: dict[str, Any] = {
 
 #: What ``plots=...`` of :func:`run_replication` draws figures for.
 _FIGURES = {"first": "the first trial of each beam", "all": "every trial", "none": "no trial"}
+
+#: ``--quick``: one diagnosis round with fewer candidates.
+QUICK_DIAGNOSIS: dict[str, Any] = {**DIAGNOSIS_SETTINGS, "max_rounds": 1, "confirm_top": 1,
+                                   "candidates": ("kv", "sh", "root_spring", "ar1_noise"),
+                                   "max_steps": 300}
 
 #: Parameters shown in the summary table (E in GPa; the rest SI).
 _SHOWN = ("gamma", "c_d", "eta", "b")
@@ -750,7 +756,8 @@ def run_demo(
     jobs : int, optional
         Worker processes (default: one per CPU core).
     quick : bool
-        First trial of each beam only, shorter chains (:data:`QUICK_SETTINGS`).
+        First trial of each beam only, shorter chains (:data:`QUICK_SETTINGS`) and a
+        one-round diagnosis (:data:`QUICK_DIAGNOSIS`).
     scheduler : str, optional
         Dask scheduler address.
     data_dir : path, optional
@@ -770,5 +777,5 @@ def run_demo(
     return run_replication(
         outdir, data_dir=data_dir, trials=[1] if quick else None,
         settings=QUICK_SETTINGS if quick else DEMO_SETTINGS, jobs=jobs, scheduler=scheduler,
-        force=force, progress=progress,
+        diagnosis=QUICK_DIAGNOSIS if quick else True, force=force, progress=progress,
     )

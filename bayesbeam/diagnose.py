@@ -606,10 +606,10 @@ class _Engine:
                   for lo, hi in pb.priors.bounds_u]
 
         def negf(u: np.ndarray) -> tuple[float, np.ndarray]:
-            v, g = fitmod._fd_gradient(pb.log_prob, u)
+            v, g = _gradient(pb.log_prob, u)
             if not np.isfinite(v):
                 return 1e300, np.zeros_like(u)
-            return -v, -np.where(np.isfinite(g), g, 0.0)
+            return -v, -g
 
         for u0 in U:
             u, v = u0, -math.inf
@@ -736,6 +736,23 @@ class _Engine:
         return st.sig
 
 
+def _gradient(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
+              h: float = 1e-6) -> tuple[float, np.ndarray]:
+    """Value and finite-difference gradient of a vectorised function (one call).
+
+    Central differences, one-sided where the other side is outside the support (a
+    parameter on a prior bound, e.g. rho = 0: a central difference would be infinite
+    and the optimiser would never leave the bound); 0 where both sides are.
+    """
+    d = u.size
+    v = f(np.vstack([u, u + h * np.eye(d), u - h * np.eye(d)]))
+    f0, fp, fm = v[0], v[1 : d + 1], v[d + 1 :]
+    g = np.where(np.isfinite(fp) & np.isfinite(fm), (fp - fm) / (2 * h),
+                 np.where(np.isfinite(fp), (fp - f0) / h,
+                          np.where(np.isfinite(fm), (f0 - fm) / h, 0.0)))
+    return float(f0), g
+
+
 def _fd_hessian(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
                 h: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """Central-difference value, gradient and Hessian of a vectorised function (one call)."""
@@ -797,7 +814,7 @@ def _neutral(pb: Any, name: str) -> float:
     """Return a value at which an extension's parameter does (almost) nothing."""
     lo, hi = pb.priors[name].bounds
     L = pb.trial.beam.length
-    table = {"stiffness_gradient": 0.0, "rho": 0.0, "offset": 0.0, "b": 0.3 * L, "w0": 0.0}
+    table = {"stiffness_gradient": 0.0, "rho": 0.01, "offset": 0.0, "b": 0.3 * L, "w0": 0.0}
     if name in table:
         return table[name]
     if name == "root_spring":

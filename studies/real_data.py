@@ -23,9 +23,9 @@ frequencies (physics.md §3 gives one frequency equation for both, μ = 1/κ), s
 the modal damping can tell them apart; expect them to be reported as equivalent.
 
 Run: ``python studies/real_data.py [--outdir DIR] [--seed S]`` (all five records,
-12 elements, 3 s windows; tens of minutes), or ``--small`` (one record, 1 s, 6
-elements, tiny sampler budget; about a minute). Writes ``real_data.json`` and
-``real_data.md`` into ``outdir``.
+2 s windows at 512 Hz, 10 elements; 10-20 min per record on 2 cores), or ``--small``
+(one record, 1 s, 6 elements, four causes, one round, tiny sampler budget; about a
+minute). Writes ``real_data.json`` and ``real_data.md`` into ``outdir``.
 """
 
 from __future__ import annotations
@@ -51,12 +51,14 @@ RECORDS = (
     ("hrshm-steel", "hrshm", {}),
 )
 #: Full study settings.
-FULL = {"records": [r[0] for r in RECORDS], "duration": 3.0, "dt": 1 / 512, "n_elements": 12,
-        "diagnose": {"max_steps": 1500, "target_ess": 300.0, "confirm_top": 3}}
-#: Small: one record, seconds of sampling (for tests; posteriors not converged).
+FULL = {"records": [r[0] for r in RECORDS], "duration": 2.0, "dt": 1 / 512, "n_elements": 10,
+        "diagnose": {"max_steps": 1000, "target_ess": 300.0, "confirm_top": 3}}
+#: Small: one record, four causes, one round, seconds of sampling (for tests; posteriors
+#: not converged).
 SMALL = {"records": ["enes-alu-40cm"], "duration": 1.0, "dt": 1 / 256, "n_elements": 6,
-         "diagnose": {"max_steps": 150, "min_steps": 100, "target_ess": 30.0, "nwalkers": None,
-                      "confirm_top": 2, "loo_draws": 100, "max_rounds": 2}}
+         "diagnose": {"max_steps": 150, "min_steps": 100, "target_ess": 30.0,
+                      "confirm_top": 2, "loo_draws": 100, "max_rounds": 1,
+                      "candidates": ("tip_mass", "root_spring", "ar1_noise", "sensor_offset")}}
 #: Uniform-cantilever frequency ratios f_n/f1 (physics.md §4: (β_n L / β_1 L)²).
 RATIOS = (1.0, 6.2669, 17.5475, 34.3861)
 
