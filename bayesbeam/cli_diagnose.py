@@ -28,6 +28,7 @@ docstring) and writes into ``OUTDIR``:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -159,14 +160,21 @@ def run(args: argparse.Namespace) -> int:
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     log = None if args.json else (lambda s: print(s, file=sys.stderr, flush=True))
-    d = diagnose(
-        trial, model, seed=args.seed, max_rounds=args.max_rounds,
-        candidates=tuple(cands) if cands else CATALOGUE, n_elements=args.elements,
-        initial=args.initial, priors=priors, max_steps=args.max_steps,
-        target_ess=args.target_ess, progress=log,
-    )
+    with contextlib.ExitStack() as stack:
+        try:  # small batched matrices: BLAS threads cost more than they give
+            from threadpoolctl import threadpool_limits
+
+            stack.enter_context(threadpool_limits(limits=1))
+        except ImportError:  # optional; only the speed depends on it
+            pass
+        d = diagnose(
+            trial, model, seed=args.seed, max_rounds=args.max_rounds,
+            candidates=tuple(cands) if cands else CATALOGUE, n_elements=args.elements,
+            initial=args.initial, priors=priors, max_steps=args.max_steps,
+            target_ess=args.target_ess, progress=log,
+        )
     record = d.to_json_dict()
-    text = json.dumps(record, indent=2)
+    text = json.dumps(record, indent=2, allow_nan=False)
     (outdir / "diagnosis.json").write_text(text + "\n", encoding="utf-8")
     (outdir / "report.md").write_text(d.narrative(), encoding="utf-8")
     for label, sig in (("baseline", d.signatures_before), ("final", d.signatures_after)):

@@ -184,7 +184,9 @@ def _check_resume(outdir: Path, record: dict[str, Any]) -> None:
 def _truths(trial: Any, problem: Any) -> list[float | None] | None:
     """Return the true values of a synthetic trial (bayesbeam.simulate), for the corner plot."""
     syn = trial.meta.get("synthetic") or trial.source
-    params = syn.get("params") if isinstance(syn, dict) else None
+    if not isinstance(syn, dict):  # e.g. a user's `synthetic = true` in [meta]
+        return None
+    params = syn.get("params")
     if syn.get("generator") != "bayesbeam.simulate" or not isinstance(params, dict):
         return None
     known = {k: float(v) for k, v in params.items()}

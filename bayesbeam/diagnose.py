@@ -436,7 +436,7 @@ def describe_signatures(sig: Any) -> list[str]:
             out.append(f"Mode {m.mode}: f data {m.data.frequency:.4g} Hz vs model "
                        f"{m.model.frequency:.4g} Hz; ζ data {m.data.damping_ratio:.3g} vs model "
                        f"{m.model.damping_ratio:.3g}.")
-    if math.isfinite(sig.decay_excess_diff):
+    if math.isfinite(sig.decay_excess_diff) and sig.decay_excess_diff_err < 1.0:
         out.append(f"Decay rate vs amplitude (mode 1): excess decay rate at the initial amplitude "
                    f"data − model {100 * sig.decay_excess_diff:+.0f} ± "
                    f"{100 * sig.decay_excess_diff_err:.0f} %.")
@@ -476,8 +476,9 @@ def signature_support(cause: str, sig: Any) -> tuple[bool | None, str]:
         return bool(big and s > 0), txt
     if cause == "amplitude_damping":
         d, e = sig.decay_excess_diff, sig.decay_excess_diff_err
-        if not math.isfinite(d):
-            return None, "decay rate vs amplitude not measurable"
+        if not (math.isfinite(d) and e < 1.0):
+            return None, ("decay rate vs amplitude not measurable on this record (the "
+                          "amplitude falls too little, or mode 1 is too weak)")
         way = ("faster at large amplitude (drag)" if d > 0
                else "faster at small amplitude (friction)")
         return bool(abs(d) > 2 * e), (
@@ -619,12 +620,11 @@ class _Engine:
                 res = sopt.minimize(negf, u, jac=True, method="L-BFGS-B", bounds=bounds,
                                     options={"maxiter": 300})
                 v_new = float(pb.log_prob(res.x[None])[0])
-                if not v_new > v + 1e-3:
-                    v = max(v, v_new)
-                    if v_new >= v:
-                        u = res.x
+                gain = v_new - v
+                if gain > 0:
+                    u, v = res.x, v_new
+                if not gain > 1e-3:
                     break
-                u, v = res.x, v_new
             if v > st.lp:
                 st.u, st.lp = np.asarray(u, dtype=float), v
         if st.u is not None and np.isfinite(st.lp):
@@ -660,8 +660,6 @@ class _Engine:
         feats = self.features()
         names = list(pb.names)
         lin = _linear_forward(pb)
-        if lin is None:
-            return []
         base = {n: warm.get(n, neutral[n]) for n in names}
         # From a warm start only the parameters it lacks need physics-based values.
         new = {n for n in names if n not in warm}
@@ -839,6 +837,8 @@ def _linear_forward(pb: Any) -> Any:
 
     if isinstance(pb.forward, Forward):
         return pb.forward
+    if isinstance(getattr(pb.forward, "linear", None), Forward):
+        return pb.forward.linear  # NonlinearForward keeps its linear part
     m = pb.model
     parts = [p for p in m.parts if p not in m.nonlinear and p not in m.noise]
     return Forward(pb.trial.beam, "+".join(parts), pb.trial.times[:2],

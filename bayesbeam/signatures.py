@@ -617,9 +617,12 @@ def decay_rate_vs_amplitude(
         half = 0.5 * (t[sel][-1] - t[sel][0])
         amps.append(est.amplitude * math.exp(-est.decay_rate * half))
         rates.append(est.decay_rate)
+    c, c_se = float(fit["p"][2 * K]), float(fit["se"][2 * K])
+    if not -0.89 < c < 49.0:
+        c_se = math.inf  # on a bound of the fit: the curvature of the envelope is not seen
     return DecayAmplitude(
-        frequency=float(fit["p"][0]), excess=float(fit["p"][2 * K]),
-        excess_se=float(fit["se"][2 * K]), rate0=float(fit["p"][K]), amplitude0=float(amp0),
+        frequency=float(fit["p"][0]), excess=c,
+        excess_se=c_se, rate0=float(fit["p"][K]), amplitude0=float(amp0),
         amplitude=np.array(amps), rate=np.array(rates),
     )
 

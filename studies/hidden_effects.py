@@ -15,7 +15,8 @@ AR(1) rho = 0.8; offset 5 % of the amplitude. Displacement trials are taps (tip
 impulse), acceleration trials releases from 1 cm (see tests/test_diagnose.py for why).
 
 Run: ``python studies/hidden_effects.py [--quantity displacement|acceleration]
-[--outdir DIR]`` (8 causes x 3 sizes, about 20-40 min on 2 cores), or ``--small``
+[--sizes F ...] [--causes C ...] [--outdir DIR]`` (8 causes x 5 sizes, about an hour
+on 2 cores), or ``--small``
 (two causes, one size, tiny budget). Writes ``hidden_effects.json`` and
 ``hidden_effects.md``.
 """
@@ -46,7 +47,7 @@ W1 = BETA1**2 * np.sqrt(EI / (BEAM.rhoA * L**4))
 BASE = {"gamma": 2 * BEAM.rhoA * W1 * 0.003, "c_d": 2 * E * 0.0008 / W1}
 N_EL = 8
 #: Size factors relative to the reference sizes.
-SIZES = (1.0, 0.3, 0.1)
+SIZES = (1.0, 0.3, 0.1, 0.03, 0.01)
 #: Sampler budget per confirmation (as in the tests).
 BUDGET = {"n_elements": N_EL, "nwalkers": 24, "target_ess": 200.0, "min_steps": 200,
           "max_steps": 400, "confirm_top": 2, "loo_draws": 300, "signatures": False}
@@ -124,7 +125,8 @@ def make_trial(cause: str, size: float, quantity: str, seed: int = 0) -> tuple[T
 
 
 def main(small: bool = False, outdir: str | Path | None = None, quantity: str = "displacement",
-         seed: int = 0, progress: bool = True) -> dict[str, Any]:
+         seed: int = 0, progress: bool = True, sizes: tuple[float, ...] | None = None,
+         causes: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Run the benchmark; print and write the table.
 
     Parameters
@@ -139,14 +141,18 @@ def main(small: bool = False, outdir: str | Path | None = None, quantity: str = 
         Seed of the noise and of every diagnosis.
     progress : bool
         Progress lines on stderr.
+    sizes : tuple of float, optional
+        Size factors (default :data:`SIZES`; ``(1,)`` when small).
+    causes : tuple of str, optional
+        Causes to run (default the catalogue; two when small).
 
     Returns
     -------
     dict
         ``rows`` (one dict per run), ``markdown`` and ``paths``.
     """
-    causes = ("tip_mass", "sensor_offset") if small else CATALOGUE
-    sizes = (1.0,) if small else SIZES
+    causes = causes or (("tip_mass", "sensor_offset") if small else CATALOGUE)
+    sizes = sizes or ((1.0,) if small else SIZES)
     budget = SMALL_BUDGET if small else BUDGET
     outdir = Path(outdir or ("hidden-effects-small" if small else "hidden-effects"))
     outdir.mkdir(parents=True, exist_ok=True)
@@ -193,5 +199,8 @@ if __name__ == "__main__":
     ap.add_argument("--quantity", choices=("displacement", "acceleration"),
                     default="displacement")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sizes", type=float, nargs="+", default=None)
+    ap.add_argument("--causes", nargs="+", default=None, choices=CATALOGUE)
     a = ap.parse_args()
-    main(small=a.small, outdir=a.outdir, quantity=a.quantity, seed=a.seed)
+    main(small=a.small, outdir=a.outdir, quantity=a.quantity, seed=a.seed,
+         sizes=tuple(a.sizes) if a.sizes else None, causes=tuple(a.causes) if a.causes else None)

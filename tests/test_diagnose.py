@@ -174,14 +174,14 @@ def test_root_spring_size_from_frequency_equation():
 
 def test_smoke_offset_named_and_cli(tmp_path):
     # Fast: a short trial, two candidates, one round, a tiny sampler budget.
-    t = np.arange(256) / 256.0
+    t = np.arange(192) / 256.0
     y = simulate_signal(BEAM, "viscous", {"gamma": GAMMA, "w0": 0.01}, t, n_elements=4)
     rng = np.random.default_rng(1)
     rms = np.sqrt(np.mean(y**2))
     trial = Trial(times=t, values=y + 0.01 * rms * rng.standard_normal(t.size) + 0.1 * rms,
                   quantity="displacement", beam=BEAM, name="smoke")
     d = diagnose(trial, "viscous", seed=0, max_rounds=1, candidates=("sensor_offset", "kv"),
-                 n_elements=4, nwalkers=12, target_ess=50.0, min_steps=100, max_steps=150,
+                 n_elements=4, nwalkers=12, target_ess=50.0, min_steps=100, max_steps=100,
                  loo_draws=100, signatures=False)
     assert d.named_causes == ("sensor_offset",)
     r = d.rounds[0]
@@ -189,7 +189,7 @@ def test_smoke_offset_named_and_cli(tmp_path):
     assert r.rms_after < r.rms_before
     assert r.signature_agrees
     rec = d.to_json_dict()
-    json.dumps(rec)
+    json.dumps(rec, allow_nan=False)  # strict JSON
     assert rec["final_model"] == "viscous+sensor_offset"
     assert "sensor_offset" in d.narrative()
     # CLI: same run through the sub-command's own parser.
@@ -199,7 +199,7 @@ def test_smoke_offset_named_and_cli(tmp_path):
     args = parser.parse_args(["diagnose", str(path), "--baseline", "viscous", "-o",
                               str(tmp_path / "out"), "--json", "--max-rounds", "1",
                               "--candidates", "sensor_offset", "--elements", "4",
-                              "--max-steps", "150", "--target-ess", "50"])
+                              "--max-steps", "100", "--target-ess", "50"])
     assert args.func(args) == 0
     out = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert out["named_causes"] == ["sensor_offset"]
@@ -299,6 +299,7 @@ def test_real_data_study_small(tmp_path, real_data_root):
     rec = out["results"]["enes-alu-40cm"]
     # The uniform beam misses f2/f1 of the real strip by several per cent: some
     # structural extension is named in the first round.
+    assert rec["signatures"]["before"]["ratio_f2_f1"]["shift"] > 0.02
     assert rec["named_causes"] and rec["named_causes"][0] in {
         "tip_mass", "root_spring", "stiffness_gradient", "ar1_noise", "sensor_offset"}
     assert all(p.is_file() for p in out["paths"])
