@@ -789,7 +789,8 @@ def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: floa
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
             break
         curv = -np.diag(H)
-        h = np.where(curv > 0, 0.2 / np.sqrt(np.abs(curv)), h)
+        # Steps of 0.2 conditional sd where the curvature is positive; keep h elsewhere.
+        h = np.where(curv > 0, 0.2 / np.sqrt(np.where(curv > 0, curv, 1.0)), h)
         w, V = np.linalg.eigh(-0.5 * (H + H.T))
         # Levenberg shift keeps the step an ascent direction where -H is not PD.
         w = np.maximum(w, 1e-8 * max(float(np.max(np.abs(w))), 1e-300))

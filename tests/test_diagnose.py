@@ -222,7 +222,12 @@ def test_bad_input():
 @pytest.mark.slow
 @pytest.mark.parametrize("quantity", ["displacement", "acceleration"])
 @pytest.mark.parametrize("cause", CATALOGUE)
-def test_hidden_cause_is_named(cause, quantity):
+def test_hidden_cause_is_named(cause, quantity, request):
+    if (cause, quantity) == ("amplitude_damping", "acceleration"):
+        # Known defect: on acceleration the slow-flow model's phase error (~2e-3 of the
+        # peak, tests/test_nonlinear.py) leaves correlated residuals, so ar1_noise is named
+        # in round 1 and amplitude_damping only in round 2. Strict: passing flags the fix.
+        request.applymarker(pytest.mark.xfail(strict=True, reason="ar1_noise named first"))
     trial, initial, baseline = case(cause, quantity)
     d = diagnose(trial, baseline, seed=1, initial=initial, **BUDGET)
     assert d.named_causes == (cause,), d.narrative()
