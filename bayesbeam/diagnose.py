@@ -567,7 +567,12 @@ class _Engine:
         """Measured f1, f2 and decay rates of the data (for physics-based starts)."""
         if self._features is None:
             from bayesbeam.problem import first_frequency
-            from bayesbeam.signatures import damped_sinusoids, periodogram, spectral_peak
+            from bayesbeam.signatures import (
+                damped_sinusoids,
+                decay_rate_vs_amplitude,
+                periodogram,
+                spectral_peak,
+            )
 
             t, y = self.trial.times, self.trial.values
             f1 = first_frequency(t, y)
@@ -590,6 +595,12 @@ class _Engine:
                         feats[f"sigma{k}"] = e.decay_rate
             if est[0] is None:
                 feats.pop("f2", None)  # a ratio needs both
+            else:
+                # Amplitude dependence of the first mode's decay (starts for drag).
+                dva = decay_rate_vs_amplitude(t, y, est[0].frequency,
+                                              other=[est[0].frequency * r for r in (6.267, 17.55)])
+                if dva is not None and np.isfinite(dva.excess_se):
+                    feats.update(excess=dva.excess, excess_se=dva.excess_se, rate0=dva.rate0)
             self._features = feats
         return self._features
 
@@ -641,8 +652,10 @@ class _Engine:
             warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf on a bound: reported
             try:
                 st.laplace = laplace_evidence(st.problem.log_prob, st.u).log_z
-            except EvidenceError:
-                st.laplace = math.nan  # MAP on a prior bound: Laplace not applicable
+            except (EvidenceError, np.linalg.LinAlgError):
+                # MAP on a prior bound, or -H numerically not positive definite (Cholesky
+                # can fail where eigvalsh did not): Laplace is not applicable, recorded NaN.
+                st.laplace = math.nan
 
     def starts(self, st: _State, warm: Mapping[str, float] | None) -> np.ndarray:
         """Physical start points: warm (current MAP + neutral new values) and physics-based."""
@@ -861,8 +874,13 @@ def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
     The tip amplitude of mode 1 comes from its measured amplitude at the sensor
     (divided by ω1 per time derivative, scaled by the mode shape's tip/sensor ratio);
     :meth:`bayesbeam.nonlinear.NonlinearForward.equivalent_damping` converts it to
-    the damping ratio per unit drag and per unit friction. Starts: drag alone at 0.5
-    and 2 times the measured ζ1, friction alone at 0.25 and 1 times it.
+    the damping ratio per unit drag and per unit friction. Starts: drag alone giving
+    0.5 and 2 times the measured ζ1, friction alone 0.25 and 1 times it, each with the
+    linear damping coefficients scaled by 1/(1 + factor) so that the total stays near
+    the measured one (a linear fit has already absorbed the amplitude-dependent part);
+    and, when the data's decay rate changes with amplitude beyond 2 standard errors
+    (:func:`bayesbeam.signatures.decay_rate_vs_amplitude`: rate σ0 (1 + c) at the first
+    sample), drag giving c σ0/ω1 with the linear damping giving σ0.
     """
     fwd = pb.forward
     if not hasattr(fwd, "equivalent_damping"):
@@ -878,16 +896,26 @@ def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
     P[list(fwd.param_names).index("drag")] = 1.0
     P[list(fwd.param_names).index("friction")] = 1.0
     zd, zf = fwd.equivalent_damping(P[None], amp)
-    zeta1 = feats["sigma1"] / (2 * np.pi * feats["f1"])
+    w1 = 2 * np.pi * feats["f1"]
+    zeta1 = feats["sigma1"] / w1
+    laws = [k for k in ("gamma", "c_d", "eta") if k in v]
+
+    def start(name: str, zeta: float, per_unit: float, scale: float) -> dict[str, float]:
+        w = dict(v)
+        lo, hi = pb.priors[name].bounds
+        w[name] = float(np.clip(zeta / per_unit, lo * 1.01, hi * 0.99))
+        for k in laws:
+            klo, khi = pb.priors[k].bounds
+            w[k] = float(np.clip(v[k] * scale, klo * 1.01, khi * 0.99))
+        return w
+
     out = []
     for name, per_unit, factors in (("drag", zd[0], (0.5, 2.0)), ("friction", zf[0], (0.25, 1.0))):
-        if not (np.isfinite(per_unit) and per_unit > 0):
-            continue
-        lo, hi = pb.priors[name].bounds
-        for fac in factors:
-            w = dict(v)
-            w[name] = float(np.clip(fac * zeta1 / per_unit, lo * 1.01, hi * 0.99))
-            out.append(w)
+        if np.isfinite(per_unit) and per_unit > 0:
+            out += [start(name, fac * zeta1, per_unit, 1 / (1 + fac)) for fac in factors]
+    c, c_se, s0 = feats.get("excess", 0.0), feats.get("excess_se", np.inf), feats.get("rate0", 0.0)
+    if c > 2 * c_se and s0 > 0 and np.isfinite(zd[0]) and zd[0] > 0:
+        out.append(start("drag", c * s0 / w1, zd[0], s0 / feats["sigma1"]))
     return out
 
 
