@@ -609,8 +609,8 @@ class _Engine:
         from bayesbeam import fit as fitmod
 
         pb = st.problem
-        X = fitmod._clip_to_prior(pb, np.atleast_2d(starts))
-        X = fitmod._scan_E(pb, fitmod._profile_linear(pb, X))
+        X = fitmod.clip_to_prior(pb, np.atleast_2d(starts))
+        X = fitmod.scan_E(pb, fitmod.profile_linear(pb, X))
         U = pb.priors.to_u(X)
         if st.u is not None:
             U = np.vstack([st.u[None], U])
@@ -652,9 +652,9 @@ class _Engine:
             warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf on a bound: reported
             try:
                 st.laplace = laplace_evidence(st.problem.log_prob, st.u).log_z
-            except (EvidenceError, np.linalg.LinAlgError):
-                # MAP on a prior bound, or -H numerically not positive definite (Cholesky
-                # can fail where eigvalsh did not): Laplace is not applicable, recorded NaN.
+            except EvidenceError:
+                # MAP on a prior bound, or -H not (numerically) positive definite:
+                # Laplace is not applicable, recorded NaN.
                 st.laplace = math.nan
 
     def starts(self, st: _State, warm: Mapping[str, float] | None) -> np.ndarray:

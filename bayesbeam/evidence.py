@@ -653,7 +653,16 @@ def laplace_evidence(
             f"{np.array2string(eig, precision=3)}); u_map is not a strict maximum. Optimise "
             "further, fix unidentified parameters, or use bridge_sampling instead"
         )
-    chol = np.linalg.cholesky(neg)
+    try:
+        chol = np.linalg.cholesky(neg)
+    except np.linalg.LinAlgError as exc:
+        # eigvalsh and Cholesky can disagree when the smallest eigenvalue is at rounding
+        # level relative to the largest: numerically singular, not a strict maximum.
+        raise HessianNotNegativeDefiniteError(
+            "the Hessian of log_prob at u_map is numerically singular (Cholesky of -H "
+            f"failed; eigenvalues of -H: {np.array2string(eig, precision=3)}); optimise "
+            "further, fix unidentified parameters, or use bridge_sampling instead"
+        ) from exc
     log_det = 2.0 * float(np.sum(np.log(np.diag(chol))))
     y = np.linalg.solve(chol, grad)
     log_z = f0 + 0.5 * float(y @ y) + 0.5 * d * _LOG_2PI - 0.5 * log_det

@@ -35,10 +35,13 @@ from bayesbeam.trial import Trial
 __all__ = [
     "FitError",
     "SamplerCoordinates",
+    "clip_to_prior",
     "decay_rate",
     "find_map",
     "fit",
     "laplace_covariance",
+    "profile_linear",
+    "scan_E",
     "thin_result",
 ]
 
@@ -89,8 +92,26 @@ def _linear_names(problem: Problem) -> list[str]:
     return init + (["offset"] if "offset" in problem.names else [])
 
 
-def _profile_linear(problem: Problem, X: np.ndarray) -> np.ndarray:
-    """Set the linear parameters of each row of X to their least-squares values."""
+def profile_linear(problem: Problem, X: np.ndarray) -> np.ndarray:
+    """Set the linear parameters of each row to their least-squares values.
+
+    The initial-condition amplitudes (``w0``, ``p0``, ``A*``, ``B*``) and ``offset``
+    enter the response linearly, so for fixed nonlinear parameters they are profiled
+    out exactly by one least-squares solve per row.
+
+    Parameters
+    ----------
+    problem : Problem
+        The calibration problem.
+    X : ndarray, shape (k, ndim)
+        Parameter sets in physical units.
+
+    Returns
+    -------
+    ndarray, shape (k, ndim)
+        Copy of ``X`` with the linear parameters replaced (rows whose basis response is
+        invalid are left unchanged).
+    """
     lin = _linear_names(problem)
     if not lin:
         return X
@@ -119,7 +140,21 @@ def _profile_linear(problem: Problem, X: np.ndarray) -> np.ndarray:
     return X
 
 
-def _clip_to_prior(problem: Problem, X: np.ndarray) -> np.ndarray:
+def clip_to_prior(problem: Problem, X: np.ndarray) -> np.ndarray:
+    """Clip parameter sets into the prior support, 1e-6 of its width inside the bounds.
+
+    Parameters
+    ----------
+    problem : Problem
+        The calibration problem.
+    X : ndarray, shape (k, ndim)
+        Parameter sets in physical units.
+
+    Returns
+    -------
+    ndarray, shape (k, ndim)
+        Clipped copy (unbounded sides are left as they are).
+    """
     lo, hi = problem.priors.bounds.T
     span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
     return np.clip(X, lo + 1e-6 * span, hi - 1e-6 * span)
@@ -163,14 +198,30 @@ def _start_points(problem: Problem, rng: np.random.Generator, n_starts: int) -> 
             else:  # amplitudes, offset, sigma: set below
                 X[i, j] = 0.0
     X[:, names.index("sigma")] = np.std(trial.values)
-    return _clip_to_prior(problem, X)
+    return clip_to_prior(problem, X)
 
 
-def _scan_E(problem: Problem, X: np.ndarray, n_grid: int = 96) -> np.ndarray:
+def scan_E(problem: Problem, X: np.ndarray, n_grid: int = 96) -> np.ndarray:
     """Refine E of each start by a profile-likelihood scan over ±15 %.
 
     The likelihood is highly multimodal in E (a phase error accumulates over the
-    record), so a local optimiser must start within a fraction of a period.
+    record), so a local optimiser must start within a fraction of a period. Each row is
+    scanned on a coarse (±15 %) then a fine (±1.5 %) log grid of ``n_grid`` points, with
+    the linear parameters profiled out and ``sigma`` set to the RMS residual.
+
+    Parameters
+    ----------
+    problem : Problem
+        The calibration problem.
+    X : ndarray, shape (k, ndim)
+        Start points in physical units.
+    n_grid : int
+        Grid points per scan.
+
+    Returns
+    -------
+    ndarray, shape (k, ndim)
+        Refined start points, inside the prior support.
     """
     j = problem.names.index("E")
     s = problem.names.index("sigma")
@@ -180,13 +231,13 @@ def _scan_E(problem: Problem, X: np.ndarray, n_grid: int = 96) -> np.ndarray:
             grid = X[i, j] * np.exp(np.linspace(-width, width, n_grid))
             Xg = np.repeat(out[i : i + 1], n_grid, axis=0)
             Xg[:, j] = grid
-            Xg = _profile_linear(problem, _clip_to_prior(problem, Xg))
+            Xg = profile_linear(problem, clip_to_prior(problem, Xg))
             res = problem.predict(Xg)
             sse = np.where(res.valid, np.sum((problem.data - res.y) ** 2, axis=1), np.inf)
             best = int(np.argmin(sse))
             out[i] = Xg[best]
             out[i, s] = np.sqrt(sse[best] / problem.data.size)
-    return _clip_to_prior(problem, out)
+    return clip_to_prior(problem, out)
 
 
 def _fd_gradient(f, u: np.ndarray, h: float = 1e-6) -> tuple[float, np.ndarray]:
@@ -259,7 +310,7 @@ def find_map(
     u_map : ndarray, shape (ndim,)
     log_prob_map : float
     """
-    X = _scan_E(problem, _start_points(problem, rng, n_starts))
+    X = scan_E(problem, _start_points(problem, rng, n_starts))
     U = problem.priors.to_u(X)
     best_u, best_v = None, -np.inf
 

@@ -275,6 +275,20 @@ def test_laplace_rejects_non_maximum():
         laplace_evidence(saddle, np.zeros(2), hessian=np.eye(3))
 
 
+def test_laplace_reports_failed_cholesky_as_not_negative_definite(monkeypatch):
+    # eigvalsh and Cholesky can disagree at rounding level; the failure must surface as
+    # the package's error (callers catch EvidenceError), never as a bare LinAlgError.
+    def quad(u):
+        return -0.5 * np.sum(np.atleast_2d(u) ** 2, axis=1)
+
+    def failing_cholesky(a):
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+    monkeypatch.setattr(np.linalg, "cholesky", failing_cholesky)
+    with pytest.raises(HessianNotNegativeDefiniteError, match="numerically singular"):
+        laplace_evidence(quad, np.zeros(2), hessian=-np.eye(2))
+
+
 def test_laplace_adapts_step_to_a_narrow_non_gaussian_posterior():
     # Student-t shaped log density with scale 1e-6 (a sharply identified parameter):
     # f = -(nu/2) log(1 + (u/sig)²/nu), f''(0) = -1/sig², so Laplace gives exactly
