@@ -14,6 +14,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from bayesbeam import cli_options as opts
+
 __all__ = ["main"]
 
 
@@ -96,17 +98,14 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = p.add_subparsers(dest="command", required=True)
 
-    def common(sp: argparse.ArgumentParser) -> None:
-        sp.add_argument("--json", action="store_true", help="machine-readable output")
-
     sp = sub.add_parser("modes", help="natural frequencies and modal damping ratios")
     sp.add_argument("beam", type=Path, help="beam TOML file ([beam] table, SI units)")
     sp.add_argument("--model", default="viscous", help="e.g. viscous, viscous+kv, viscous+sh")
     sp.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="parameter value in SI units (E in Pa, gamma, c_d, a, b)")
-    sp.add_argument("--elements", type=int, default=16)
+    opts.add_elements_option(sp, help=None)
     sp.add_argument("--n-modes", type=int, default=6, help="how many modes to print")
-    common(sp)
+    opts.add_json_option(sp)
     sp.set_defaults(func=_cmd_modes)
 
     sp = sub.add_parser("simulate", help="write a synthetic trial (TOML + CSV)")
@@ -118,15 +117,15 @@ def _build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--tip-deflection", type=float, default=0.005, help="release deflection, m")
     sp.add_argument("--noise-sd", type=float, default=0.0, help="Gaussian noise sd, SI units")
     sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument("--elements", type=int, default=16)
+    opts.add_elements_option(sp, help=None)
     sp.add_argument("-o", "--output", type=Path, required=True, help="trial TOML to write")
-    common(sp)
+    opts.add_json_option(sp)
     sp.set_defaults(func=_cmd_simulate)
 
     sp = sub.add_parser("bench", help="forward-model benchmark")
-    sp.add_argument("--elements", type=int, default=16)
+    opts.add_elements_option(sp, help=None)
     sp.add_argument("--repeats", type=int, default=7)
-    common(sp)
+    opts.add_json_option(sp)
     sp.set_defaults(func=_cmd_bench)
 
     # Commands of the later stages live in their own modules (each imports its heavy

@@ -10,9 +10,10 @@ JSON record with ``--json``. See :mod:`bayesbeam.compare` for the rules.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
+
+from bayesbeam import cli_options as opts
 
 __all__ = ["parse_prior_odds", "register", "run"]
 
@@ -88,7 +89,7 @@ def register(subparsers: Any) -> None:
     Parameters
     ----------
     subparsers : argparse._SubParsersAction
-        From ``ArgumentParser.add_subparsers``.
+        Sub-parser collection of the ``bayesbeam`` parser.
     """
     sp = subparsers.add_parser(
         "compare",
@@ -100,12 +101,11 @@ def register(subparsers: Any) -> None:
             "indistinguishable."
         ),
     )
-    sp.add_argument("trial", type=Path, help="trial TOML file")
+    opts.add_trial_argument(sp)
     sp.add_argument("--models", default=DEFAULT_MODELS,
                     help=f"comma-separated model names (default {DEFAULT_MODELS})")
-    sp.add_argument("-o", "--outdir", type=Path, required=True, help="output directory")
-    sp.add_argument("--seed", type=int, default=0, help="seed of every random choice")
-    sp.add_argument("--elements", type=int, default=16, help="Hermite elements")
+    opts.add_outdir_seed_options(sp)
+    opts.add_elements_option(sp, help="Hermite elements")
     sp.add_argument("--target-ess", type=float, default=1000.0,
                     help="effective sample size per parameter to stop at")
     sp.add_argument("--max-steps", type=int, default=20_000, help="sampler step budget")
@@ -116,7 +116,7 @@ def register(subparsers: Any) -> None:
                     help="tie threshold on |Δ log Z| in nats (default 1; Kass & Raftery 1995)")
     sp.add_argument("--loo-draws", type=int, default=1000,
                     help="posterior draws for the pointwise log-likelihood (LOO, WAIC)")
-    sp.add_argument("--json", action="store_true", help="machine-readable output")
+    opts.add_json_option(sp)
     sp.set_defaults(func=run)
 
 
@@ -126,12 +126,13 @@ def run(args: argparse.Namespace) -> int:
     Parameters
     ----------
     args : argparse.Namespace
-        Parsed arguments of :func:`register`'s parser.
+        Parsed arguments of :func:`register`'s parser; ``models`` and ``prior_odds``
+        are checked here before any fit starts.
 
     Returns
     -------
     int
-        Exit status 0.
+        Exit status 0 once every model is fitted and the files are written.
     """
     from bayesbeam.compare import compare
     from bayesbeam.models import parse_model
@@ -142,8 +143,7 @@ def run(args: argparse.Namespace) -> int:
         raise CompareCLIError("--models is empty; give e.g. viscous,viscous+kv")
     if len(set(models)) != len(models):
         raise CompareCLIError(f"--models lists a model twice: {models}")
-    if args.elements < 1:
-        raise CompareCLIError(f"--elements must be a positive integer, got {args.elements}")
+    opts.check_options(args, CompareCLIError, "elements")
     if args.max_steps < 1 or args.loo_draws < 2 or not args.target_ess > 0:
         raise CompareCLIError("--max-steps, --target-ess must be positive, --loo-draws >= 2")
     odds = parse_prior_odds(args.prior_odds, models)
@@ -152,18 +152,15 @@ def run(args: argparse.Namespace) -> int:
     result = compare(
         trial,
         models,
-        seed=args.seed,
         prior_odds=odds,
         threshold=args.threshold,
-        n_elements=args.elements,
-        target_ess=args.target_ess,
-        max_steps=args.max_steps,
         n_loo_draws=args.loo_draws,
         outdir=outdir,
+        **opts.fit_settings(args),
     )
     result.save(outdir)
     if args.json:
-        print(json.dumps(result.to_json_dict(), indent=2, allow_nan=False))
+        opts.print_json(result.to_json_dict())
     else:
         print(result)
         print(f"\nwrote {outdir}/comparison.{{json,txt,html,png}} and one folder per model")

@@ -20,6 +20,8 @@ import textwrap
 from pathlib import Path
 from typing import Any
 
+from bayesbeam import cli_options as opts
+
 __all__ = ["register", "run"]
 
 
@@ -46,21 +48,23 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--data", type=Path, default=None,
                     help="folder of the trials (default: the repository's data/)")
     sp.add_argument("--force", action="store_true", help="recompute cached results")
-    sp.add_argument("--json", action="store_true", help="print replication.json instead")
+    opts.add_json_option(sp, help="print replication.json instead")
     sp.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``bayesbeam demo``.
+    """Execute ``bayesbeam demo``: run :func:`bayesbeam.demo.run_demo` and print its summary.
 
     Parameters
     ----------
     args : argparse.Namespace
+        Parsed options: ``outdir``, ``jobs``, ``quick``, ``scheduler``, ``data``,
+        ``force`` and ``json``.
 
     Returns
     -------
     int
-        0 on success.
+        Exit status 0 (errors raise and :func:`bayesbeam.cli.main` reports them).
     """
     from bayesbeam.demo import run_demo
 

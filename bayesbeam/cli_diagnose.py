@@ -34,19 +34,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from bayesbeam import cli_options as opts
+
 __all__ = ["DiagnoseCLIError", "register", "run"]
 
 
 class DiagnoseCLIError(ValueError):
     """Invalid options of ``bayesbeam diagnose``; the message says how to fix them."""
-
-
-def _initial(text: str) -> str:
-    if text in ("release", "impulse") or text.startswith("modes:"):
-        return text
-    raise argparse.ArgumentTypeError(
-        f"{text!r}: use 'release', 'impulse' or 'modes:K' (K a positive integer)"
-    )
 
 
 def register(subparsers: Any) -> None:
@@ -68,25 +62,16 @@ def register(subparsers: Any) -> None:
             "figures to OUTDIR. SI units throughout."
         ),
     )
-    sp.add_argument("trial", type=Path, help="trial TOML file")
+    opts.add_trial_argument(sp)
     sp.add_argument("--baseline", default="viscous+kv",
                     help="starting model, laws and extensions joined by '+' (default "
                          "viscous+kv)")
-    sp.add_argument("-o", "--outdir", type=Path, required=True, help="output directory")
-    sp.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    opts.add_outdir_seed_options(sp)
     sp.add_argument("--max-rounds", type=int, default=3, help="most causes named (default 3)")
     sp.add_argument("--candidates", default=None,
                     help="comma-separated subset of the catalogue (default: all)")
-    sp.add_argument("--elements", type=int, default=16, help="Hermite elements (default 16)")
-    sp.add_argument("--initial", type=_initial, default="release",
-                    help="initial condition: release (default), impulse or modes:K")
-    pre = sp.add_mutually_exclusive_group()
-    pre.add_argument("--decimate", type=int, default=None, metavar="Q",
-                     help="decimate by Q with a zero-phase anti-alias FIR (uniform stamps)")
-    pre.add_argument("--resample", type=float, default=None, metavar="DT",
-                     help="resample to step DT s with an anti-alias filter (any stamps)")
-    sp.add_argument("--window", type=float, nargs=2, default=None, metavar=("T0", "T1"),
-                    help="keep samples with T0 <= t <= T1 (s, trial time axis)")
+    opts.add_elements_option(sp)
+    opts.add_preprocessing_options(sp)
     sp.add_argument("--priors", type=Path, default=None,
                     help="TOML file with [priors.NAME] tables, applied to every model "
                          "that has the parameter")
@@ -94,27 +79,20 @@ def register(subparsers: Any) -> None:
                     help="emcee steps per sampled model (default 2000)")
     sp.add_argument("--target-ess", type=float, default=300.0,
                     help="bulk ESS target per sampled model (default 300)")
-    sp.add_argument("--json", action="store_true", help="print the record as JSON")
+    opts.add_json_option(sp, help="print the record as JSON")
     sp.set_defaults(func=run)
 
 
 def _check(args: argparse.Namespace) -> list[str] | None:
     from bayesbeam.diagnose import CATALOGUE
 
-    if args.seed < 0:
-        raise DiagnoseCLIError(f"--seed must be a non-negative integer, got {args.seed}")
+    opts.check_options(args, DiagnoseCLIError, "seed")
     if args.max_rounds < 1:
         raise DiagnoseCLIError(f"--max-rounds must be >= 1, got {args.max_rounds}")
-    if args.elements < 1:
-        raise DiagnoseCLIError(f"--elements must be a positive integer, got {args.elements}")
+    opts.check_options(args, DiagnoseCLIError, "elements")
     if args.max_steps < 1 or not args.target_ess > 0:
         raise DiagnoseCLIError("--max-steps and --target-ess must be positive")
-    if args.decimate is not None and args.decimate < 1:
-        raise DiagnoseCLIError(f"--decimate must be an integer >= 1, got {args.decimate}")
-    if args.resample is not None and not args.resample > 0:
-        raise DiagnoseCLIError(f"--resample must be a positive step in s, got {args.resample}")
-    if args.window is not None and not args.window[0] < args.window[1]:
-        raise DiagnoseCLIError(f"--window T0 T1 needs T0 < T1, got {args.window}")
+    opts.check_options(args, DiagnoseCLIError, *opts.PREPROCESSING)
     if args.candidates is None:
         return None
     cands = [c.strip() for c in args.candidates.split(",") if c.strip()]
@@ -143,17 +121,10 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.models import parse_model
     from bayesbeam.priors import PriorSet
     from bayesbeam.signatures import plot_signatures
-    from bayesbeam.trial import read_trial
 
     cands = _check(args)
     model = parse_model(args.baseline)
-    trial = read_trial(args.trial)
-    if args.window is not None:
-        trial = trial.window(*args.window)
-    if args.decimate is not None:
-        trial = trial.decimate(args.decimate)
-    elif args.resample is not None:
-        trial = trial.resample(args.resample)
+    trial = opts.prepare_trial(args)
     priors = None
     if args.priors is not None:
         priors = dict(PriorSet.from_toml(args.priors))
@@ -168,10 +139,9 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:  # optional; only the speed depends on it
             pass
         d = diagnose(
-            trial, model, seed=args.seed, max_rounds=args.max_rounds,
-            candidates=tuple(cands) if cands else CATALOGUE, n_elements=args.elements,
-            initial=args.initial, priors=priors, max_steps=args.max_steps,
-            target_ess=args.target_ess, progress=log,
+            trial, model, max_rounds=args.max_rounds,
+            candidates=tuple(cands) if cands else CATALOGUE, initial=args.initial,
+            priors=priors, progress=log, **opts.fit_settings(args),
         )
     record = d.to_json_dict()
     text = json.dumps(record, indent=2, allow_nan=False)

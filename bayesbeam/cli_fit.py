@@ -48,6 +48,8 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from bayesbeam import cli_options as opts
+
 __all__ = ["FitCLIError", "register", "run"]
 
 #: Draws kept for the pointwise log-likelihood in posterior.nc (the brief: ~1000).
@@ -64,21 +66,14 @@ class FitCLIError(ValueError):
     """Invalid options of ``bayesbeam fit``; the message says how to fix them."""
 
 
-def _initial(text: str) -> str:
-    if text in ("release", "impulse") or text.startswith("modes:"):
-        return text
-    raise argparse.ArgumentTypeError(
-        f"{text!r}: use 'release', 'impulse' or 'modes:K' (K a positive integer)"
-    )
-
-
 def register(subparsers: Any) -> None:
-    """Add the ``fit`` sub-command to an ``argparse`` sub-parser collection.
+    """Add ``bayesbeam fit`` and its options (model, sampler budget, preprocessing).
 
     Parameters
     ----------
     subparsers : argparse._SubParsersAction
-        The object returned by ``ArgumentParser.add_subparsers``.
+        The ``bayesbeam`` sub-commands (``ArgumentParser.add_subparsers``); ``fit`` is
+        added to them with :func:`run` as its handler.
     """
     sp = subparsers.add_parser(
         "fit",
@@ -90,61 +85,31 @@ def register(subparsers: Any) -> None:
             "residual_spectrum.png to OUTDIR. SI units throughout."
         ),
     )
-    sp.add_argument("trial", type=Path, help="trial TOML file (see data/README.md)")
+    opts.add_trial_argument(sp, help="trial TOML file (see data/README.md)")
     sp.add_argument("--model", required=True,
                     help="damping laws and extensions joined by '+', e.g. viscous+kv")
-    sp.add_argument("-o", "--outdir", type=Path, required=True, help="output directory")
-    sp.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    opts.add_outdir_seed_options(sp)
     sp.add_argument("--resume", action="store_true",
                     help="continue the checkpoint OUTDIR/chain.h5 (same options required)")
     sp.add_argument("--priors", type=Path, default=None,
                     help="TOML file with [priors.NAME] dist=... tables overriding the defaults")
-    sp.add_argument("--elements", type=int, default=16, help="Hermite elements (default 16)")
+    opts.add_elements_option(sp)
     sp.add_argument("--target-ess", type=float, default=1000.0,
                     help="bulk ESS required for every parameter (default 1000)")
     sp.add_argument("--max-steps", type=int, default=20_000,
                     help="emcee step budget (default 20000)")
-    sp.add_argument("--initial", type=_initial, default="release",
-                    help="initial condition: release (default), impulse or modes:K")
-    pre = sp.add_mutually_exclusive_group()
-    pre.add_argument("--decimate", type=int, default=None, metavar="Q",
-                     help="decimate by Q with a zero-phase anti-alias FIR (uniform stamps)")
-    pre.add_argument("--resample", type=float, default=None, metavar="DT",
-                     help="resample to step DT s with an anti-alias filter (any stamps)")
-    sp.add_argument("--window", type=float, nargs=2, default=None, metavar=("T0", "T1"),
-                    help="keep samples with T0 <= t <= T1 (s, trial time axis)")
-    sp.add_argument("--json", action="store_true", help="print the summary as JSON")
+    opts.add_preprocessing_options(sp)
+    opts.add_json_option(sp, help="print the summary as JSON")
     sp.set_defaults(func=run)
 
 
 def _check_args(args: argparse.Namespace) -> None:
-    if args.elements < 1:
-        raise FitCLIError(f"--elements must be a positive integer, got {args.elements}")
-    if args.seed < 0:
-        raise FitCLIError(f"--seed must be a non-negative integer, got {args.seed}")
+    opts.check_options(args, FitCLIError, "elements", "seed")
     if not args.target_ess > 0:
         raise FitCLIError(f"--target-ess must be positive, got {args.target_ess}")
     if args.max_steps < 1:
         raise FitCLIError(f"--max-steps must be a positive integer, got {args.max_steps}")
-    if args.decimate is not None and args.decimate < 1:
-        raise FitCLIError(f"--decimate must be an integer >= 1, got {args.decimate}")
-    if args.resample is not None and not args.resample > 0:
-        raise FitCLIError(f"--resample must be a positive step in s, got {args.resample}")
-    if args.window is not None and not args.window[0] < args.window[1]:
-        raise FitCLIError(f"--window T0 T1 needs T0 < T1, got {args.window}")
-
-
-def _prepare_trial(args: argparse.Namespace):
-    from bayesbeam.trial import read_trial
-
-    trial = read_trial(args.trial)
-    if args.window is not None:
-        trial = trial.window(*args.window)
-    if args.decimate is not None:
-        trial = trial.decimate(args.decimate)
-    elif args.resample is not None:
-        trial = trial.resample(args.resample)
-    return trial
+    opts.check_options(args, FitCLIError, *opts.PREPROCESSING)
 
 
 def _run_record(args: argparse.Namespace, trial: Any, priors: Any) -> dict[str, Any]:
@@ -269,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.sampling import NotConvergedWarning
 
     model = parse_model(args.model)
-    trial = _prepare_trial(args)
+    trial = opts.prepare_trial(args)
     priors = None
     if args.priors is not None:
         base = default_priors(trial, model, n_elements=args.elements, initial=args.initial)
@@ -289,15 +254,12 @@ def run(args: argparse.Namespace) -> int:
         result = fit(
             trial,
             model,
-            seed=args.seed,
             priors=priors,
-            n_elements=args.elements,
             initial=args.initial,
-            target_ess=args.target_ess,
-            max_steps=args.max_steps,
             outdir=outdir,
             resume=args.resume,
             problem=problem,
+            **opts.fit_settings(args),
         )
     other = [w for w in caught if not issubclass(w.category, NotConvergedWarning)]
     for w in other:  # re-issue what this block was not meant to swallow
@@ -332,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
     payload["outdir"] = str(outdir)
 
     if args.json:
-        print(json.dumps(payload, indent=2, allow_nan=False))
+        opts.print_json(payload)
     else:
         print(result)
         print(f"results in {outdir}/ (posterior.nc, summary.json, corner.png, trace.png, "

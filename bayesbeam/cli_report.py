@@ -17,16 +17,18 @@ import json
 from pathlib import Path
 from typing import Any
 
+from bayesbeam import cli_options as opts
+
 __all__ = ["register", "run"]
 
 
 def register(subparsers: Any) -> None:
-    """Add the ``report`` sub-command to an ``argparse`` sub-parser collection.
+    """Add the ``report`` sub-command (renders an existing output folder; no fitting).
 
     Parameters
     ----------
     subparsers : argparse._SubParsersAction
-        From ``ArgumentParser.add_subparsers``.
+        Where ``report`` goes: the result of ``ArgumentParser.add_subparsers``.
     """
     sp = subparsers.add_parser("report", help="self-contained HTML report of an output folder",
                                description=__doc__.split("\n\n")[0])
@@ -34,21 +36,25 @@ def register(subparsers: Any) -> None:
     sp.add_argument("-o", "--output", type=Path, default=None,
                     help="HTML file to write (default OUTDIR/report.html)")
     sp.add_argument("--title", default=None, help="page title")
-    sp.add_argument("--json", action="store_true", help="print {report, bytes} as JSON")
+    opts.add_json_option(sp, help="print {report, bytes} as JSON")
     sp.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute ``bayesbeam report``.
+    """Execute ``bayesbeam report``: write the HTML page and print where it went.
+
+    The page embeds its figures, so it can be moved or mailed on its own.
 
     Parameters
     ----------
     args : argparse.Namespace
+        Parsed options: ``outdir`` (folder to render), ``output`` (HTML path or None),
+        ``title`` and ``json``.
 
     Returns
     -------
     int
-        0 on success.
+        Exit status 0; a missing folder raises (reported with status 2).
     """
     from bayesbeam.report import write_report
 

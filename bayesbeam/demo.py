@@ -31,19 +31,18 @@ records them for the whole run.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
-import math
 import platform
-import sys
-import textwrap
 import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from bayesbeam.demo_summary import beam_of, beam_summary, conclusions_text, format_table
+from bayesbeam.jsonutil import finite_json
 
 __all__ = [
     "DATA_DIR",
@@ -108,9 +107,6 @@ QUICK_DIAGNOSIS: dict[str, Any] = {**DIAGNOSIS_SETTINGS, "max_rounds": 1, "confi
                                    "candidates": ("kv", "sh", "root_spring", "ar1_noise"),
                                    "max_steps": 300}
 
-#: Parameters shown in the summary table (E in GPa; the rest SI).
-_SHOWN = ("gamma", "c_d", "eta", "b")
-
 
 class DemoError(ValueError):
     """The demo cannot run (e.g. the data folder is missing); the message says why."""
@@ -174,10 +170,6 @@ def list_trials(data_dir: str | Path | None = None, *, beams: Sequence[str] | No
     if not out:
         raise DemoError(f"no trials in {d} match beams={beams}, trials={trials}")
     return out
-
-
-def _beam_of(trial_name: str) -> str:
-    return trial_name.partition("-trial")[0]
 
 
 def _sha(path: Path) -> str:
@@ -269,170 +261,6 @@ def _write_files(folder: Path, files: Mapping[str, bytes], task: Mapping[str, An
     for name, data in files.items():
         (folder / name).write_bytes(data)
     (folder / "task.json").write_text(json.dumps(dict(task), indent=2) + "\n", "utf-8")
-
-
-# --------------------------------------------------------------------------- summary
-
-
-def _pooled(rows: list[dict[str, float]]) -> tuple[float, float, float]:
-    """Mean of posterior means, RMS posterior sd, sd of the means across trials."""
-    means = [r["mean"] for r in rows]
-    sds = [r["sd"] for r in rows]
-    m = sum(means) / len(means)
-    rms = math.sqrt(sum(s * s for s in sds) / len(sds))
-    scatter = (math.sqrt(sum((x - m) ** 2 for x in means) / (len(means) - 1))
-               if len(means) > 1 else 0.0)
-    return m, rms, scatter
-
-
-def beam_summary(scores: Mapping[str, Mapping[str, Mapping[str, Any]]],
-                 comparisons: Mapping[str, Mapping[str, Any]],
-                 models: Sequence[str], threshold: float = 1.0) -> list[dict[str, Any]]:
-    """Per beam and model: pooled posterior summaries, summed evidence and a verdict.
-
-    Trials are independent records, each with its own parameters, so the evidence of
-    a model for a beam is the product over trials: ``Σ log Z`` with error
-    ``sqrt(Σ err²)``. Models within ``max(2 sqrt(err_best² + err²), threshold)`` nats
-    of the best are tied (the rule of :mod:`bayesbeam.compare`).
-
-    Parameters
-    ----------
-    scores : mapping
-        ``{trial: {model: score record}}`` (``score.json`` contents).
-    comparisons : mapping
-        ``{trial: comparison JSON}`` (for the per-trial winners).
-    models : sequence of str
-    threshold : float
-        Tie threshold, nats.
-
-    Returns
-    -------
-    list of dict
-        One row per (beam, model): ``beam``, ``model``, ``n_trials``, ``params``
-        (name → (mean of posterior means, RMS posterior sd, trial-to-trial sd)),
-        ``log_z``, ``log_z_err``, ``delta``, ``delta_err``, ``wins`` (trials where it
-        is the best or tied with it), ``converged`` (trials), ``verdict``.
-    """
-    beams: dict[str, list[str]] = {}
-    for t in scores:
-        beams.setdefault(_beam_of(t), []).append(t)
-    out = []
-    for beam in sorted(beams):
-        trials = sorted(beams[beam])
-        rows = []
-        for m in models:
-            recs = [scores[t][m] for t in trials if m in scores[t]]
-            if not recs:
-                continue
-            names = [n for n in ("E", *_SHOWN, "a") if n in recs[0]["posterior"]]
-            params = {n: _pooled([r["posterior"][n] for r in recs]) for n in names}
-            lz = [r.get("log_evidence") for r in recs]
-            le = [r.get("log_evidence_err") for r in recs]
-            ok = all(x is not None for x in lz + le)
-            wins = sum(1 for t in trials
-                       if m in (comparisons.get(t, {}).get("indistinguishable") or []))
-            rows.append({
-                "beam": beam, "model": m, "n_trials": len(recs), "params": params,
-                "log_z": sum(lz) if ok else math.nan,
-                "log_z_err": math.sqrt(sum(e * e for e in le)) if ok else math.nan,
-                "wins": wins, "converged": sum(bool(r.get("converged")) for r in recs),
-            })
-        finite = [r for r in rows if math.isfinite(r["log_z"])]
-        best = max(finite, key=lambda r: r["log_z"]) if finite else None
-        for r in rows:
-            if best is None or not math.isfinite(r["log_z"]):
-                r.update(delta=math.nan, delta_err=math.nan, verdict="no evidence")
-                continue
-            d = r["log_z"] - best["log_z"]
-            e = math.sqrt(r["log_z_err"] ** 2 + best["log_z_err"] ** 2) if r is not best else 0.0
-            r["delta"], r["delta_err"] = d, e
-            if r is best:
-                r["verdict"] = "best"
-            elif -d <= max(2 * e, threshold):
-                r["verdict"] = "tied with best"
-            else:
-                r["verdict"] = "less supported"
-        ties = [r for r in rows if r.get("verdict") == "tied with best"]
-        if ties and best is not None:
-            best["verdict"] = "best, tied"
-        out.extend(rows)
-    return out
-
-
-def _fmt_param(name: str, v: tuple[float, float, float]) -> str:
-    m, sd, sc = v
-    if name == "E":
-        return f"{m / 1e9:.3f} ± {sd / 1e9:.2g} [{sc / 1e9:.2g}]"
-    return f"{name} {m:.3g} ± {sd:.2g} [{sc:.2g}]"
-
-
-def format_table(rows: Sequence[Mapping[str, Any]]) -> str:
-    """Plain-text summary table of :func:`beam_summary` rows.
-
-    Parameters
-    ----------
-    rows : sequence of dict
-
-    Returns
-    -------
-    str
-    """
-    head = ["beam", "model", "E [GPa]", "damping (SI)", "Σ log Z ± err", "Δ log Z ± err",
-            "best/tied in", "verdict"]
-    body = []
-    for r in rows:
-        p = r["params"]
-        damp = "; ".join(_fmt_param(n, p[n]) for n in _SHOWN if n in p)
-        body.append([
-            r["beam"], r["model"], _fmt_param("E", p["E"]) if "E" in p else "n/a", damp,
-            f"{r['log_z']:.1f} ± {r['log_z_err']:.2f}",
-            "0" if r["verdict"].startswith("best") else f"{r['delta']:.1f} ± {r['delta_err']:.2f}",
-            f"{r['wins']}/{r['n_trials']} trials", r["verdict"],
-        ])
-    widths = [max(len(h), *(len(b[j]) for b in body)) if body else len(h)
-              for j, h in enumerate(head)]
-    lines = ["  ".join(h.ljust(widths[j]) for j, h in enumerate(head))]
-    lines.append("-" * len(lines[0]))
-    prev = None
-    for b in body:
-        if prev is not None and b[0] != prev:
-            lines.append("")
-        prev = b[0]
-        lines.append("  ".join(c.ljust(widths[j]) for j, c in enumerate(b)))
-    legend = (
-        "Values: mean over trials of the posterior mean ± RMS posterior sd [trial-to-trial sd "
-        "of the posterior means]; gamma kg/(m s), c_d Pa s, eta N s m² (spatial-hysteresis "
-        "strength, = c_d I for a narrow kernel), b m. Σ log Z: the trials' log evidences "
-        "added (independent records). Tie rule |Δ| <= max(2 sqrt(err_best² + err²), 1 nat). "
-        "'best/tied in': trials where the model is the best or tied with it."
-    )
-    lines += ["", *textwrap.wrap(legend, 100)]
-    return "\n".join(lines)
-
-
-def _conclusions(rows: Sequence[Mapping[str, Any]], truth: Mapping[str, Any] | None) -> str:
-    by_beam: dict[str, list[Mapping[str, Any]]] = {}
-    for r in rows:
-        by_beam.setdefault(r["beam"], []).append(r)
-    parts = []
-    for beam, rs in by_beam.items():
-        best = [r["model"] for r in rs if r["verdict"].startswith("best")
-                or r["verdict"] == "tied with best"]
-        s = f"{beam}: favoured {' = '.join(best) if best else 'none'}"
-        if truth and beam in truth:
-            t = truth[beam]
-            E_fit = next((r["params"]["E"][0] for r in rs if r["model"] in best), None)
-            s += f" (generating model {t['model']} + clamp compliance"
-            if E_fit is not None:
-                s += f"; E fitted {E_fit / 1e9:.1f} GPa vs true {t['E'] / 1e9:.0f} GPa"
-                if E_fit < t["E"]:
-                    s += ": the rigid-clamp models absorb the clamp compliance into E"
-            s += ")"
-        parts.append(s)
-    src = ("The source study concluded that spatial hysteresis fits the flexible beams best and "
-           "Kelvin-Voigt the stiff one, from percent errors alone. ")
-    return (src + "Here, by log evidence (with a white-noise likelihood; the diagnosis tests "
-            "that and the other assumptions): " + "; ".join(parts) + ".")
 
 
 # --------------------------------------------------------------------------- overlay
@@ -574,6 +402,7 @@ def run_replication(
     from bayesbeam.compare import compare_scores
     from bayesbeam.executor import (
         DEFAULT_SETTINGS,
+        _progress_sink,
         fit_tasks,
         load_score,
         make_executor,
@@ -583,25 +412,18 @@ def run_replication(
     t_start = time.perf_counter()
     if plots not in ("first", "all", "none"):
         raise DemoError(f"plots must be 'first', 'all' or 'none', got {plots!r}")
-    say: Callable[[str], None]
-    if progress is True:
-        def say(line: str) -> None:
-            print(line, file=sys.stderr, flush=True)
-    elif callable(progress):
-        say = progress
-    else:
-        def say(line: str) -> None:
-            return None
+    sink = _progress_sink(progress)
+    say: Callable[[str], None] = sink if sink is not None else _ignore
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     files = list_trials(data_dir, beams=beams, trials=trials)
     base = {**DEFAULT_SETTINGS, **dict(settings or {})}
     first_of_beam: dict[str, Path] = {}
     for f in files:
-        first_of_beam.setdefault(_beam_of(f.stem), f)
+        first_of_beam.setdefault(beam_of(f.stem), f)
     tasks = []
     for f in files:
-        want = plots == "all" or (plots == "first" and first_of_beam[_beam_of(f.stem)] == f)
+        want = plots == "all" or (plots == "first" and first_of_beam[beam_of(f.stem)] == f)
         tasks += fit_tasks([f], models, seed=seed, settings={**base, "plots": want})
 
     diag_spec = None
@@ -656,7 +478,7 @@ def run_replication(
         comparisons[tname] = comp.to_json_dict()
         scores[tname] = {o.task.model: o.score for o in outs}
         if plots == "all" or (plots == "first"
-                              and first_of_beam[_beam_of(tname)].stem == tname):
+                              and first_of_beam[beam_of(tname)].stem == tname):
             _overlay(Path(outs[0].task.trial_file), outdir / tname, models,
                      int(base.get("plot_dpi", 90)))
     t_comp = time.perf_counter()
@@ -668,7 +490,7 @@ def run_replication(
     if tpath.is_file():
         with tpath.open("rb") as fh:
             truth = tomllib.load(fh)
-    conclusions = _conclusions(rows, truth)
+    conclusions = conclusions_text(rows, truth)
     task_cpu = sum(float(o.score.get("task_cpu_seconds") or 0.0) for o in outcomes
                    if not o.cached)
     record = {
@@ -722,21 +544,12 @@ def run_replication(
                        record=record)
 
 
-def _write_json(path: Path, obj: Any) -> None:
-    def clean(x: Any) -> Any:
-        if isinstance(x, float):
-            return x if math.isfinite(x) else None
-        if isinstance(x, Mapping):
-            return {str(k): clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if dataclasses.is_dataclass(x) and not isinstance(x, type):
-            return clean(dataclasses.asdict(x))
-        if isinstance(x, Path):
-            return str(x)
-        return x
+def _ignore(line: str) -> None:
+    """Progress sink of ``progress=False``: drop the line."""
 
-    path.write_text(json.dumps(clean(obj), indent=2, allow_nan=False) + "\n", "utf-8")
+
+def _write_json(path: Path, obj: Any) -> None:
+    path.write_text(json.dumps(finite_json(obj), indent=2, allow_nan=False) + "\n", "utf-8")
 
 
 def run_demo(
@@ -750,6 +563,9 @@ def run_demo(
     progress: bool | Callable[[str], None] = True,
 ) -> Replication:
     """Run the ``bayesbeam demo`` job: :func:`run_replication` with the demo settings.
+
+    All trials (or the first of each beam with ``quick``), :data:`MODELS`, seed 0,
+    figures for the first trial of each beam, the diagnosis and the HTML report.
 
     Parameters
     ----------

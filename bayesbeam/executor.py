@@ -63,6 +63,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bayesbeam.jsonutil import finite_json, json_default
+
 __all__ = [
     "DEFAULT_SETTINGS",
     "ExecutorError",
@@ -293,34 +295,8 @@ def _single_thread() -> Iterator[None]:
                 _LIMIT_STATE["controller"] = None
 
 
-def _jsonable(obj: Any) -> Any:
-    import numpy as np
-
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, Mapping):
-        return dict(obj)
-    if isinstance(obj, (set, frozenset, tuple)):
-        return list(obj)
-    raise TypeError(f"cannot write {type(obj).__name__} to JSON")
-
-
-def _strict(obj: Any) -> Any:
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, Mapping):
-        return {str(k): _strict(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_strict(v) for v in obj]
-    return obj
-
-
 def _dump(path: Path, obj: Any) -> None:
-    text = json.dumps(_strict(json.loads(json.dumps(obj, default=_jsonable))), indent=2,
+    text = json.dumps(finite_json(json.loads(json.dumps(obj, default=json_default))), indent=2,
                       allow_nan=False)
     path.write_text(text + "\n", encoding="utf-8")
 
@@ -585,6 +561,19 @@ def _cached(task: FitTask, folder: Path) -> dict[str, Any] | None:
         return None  # unreadable: recompute
 
 
+def _print_progress(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def _progress_sink(progress: bool | Callable[[str], None]) -> Callable[[str], None] | None:
+    """Where progress lines go: stderr (``True``), the callable itself, or nowhere (None)."""
+    if progress is True:
+        return _print_progress
+    if callable(progress):
+        return progress
+    return None
+
+
 def _progress_line(k: int, n: int, o: TaskOutcome, t_start: float) -> str:
     sc = o.score
     lz, err = sc.get("log_evidence"), sc.get("log_evidence_err")
@@ -634,14 +623,7 @@ def run_fits(
     rel = [t.relpath for t in tasks]
     if len(set(rel)) != len(rel):
         raise ExecutorError("two tasks share a result folder (same trial name and model)")
-    say: Callable[[str], None] | None
-    if progress is True:
-        def say(line: str) -> None:
-            print(line, file=sys.stderr, flush=True)
-    elif callable(progress):
-        say = progress
-    else:
-        say = None
+    say = _progress_sink(progress)
     t_start = time.perf_counter()
     outcomes: list[TaskOutcome | None] = [None] * len(tasks)
     todo: list[int] = []

@@ -14,6 +14,7 @@ space ``u`` of :mod:`bayesbeam.priors` as usual.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -33,12 +34,14 @@ from bayesbeam.sampling import Chain, init_walkers, run_emcee
 from bayesbeam.trial import Trial
 
 __all__ = [
+    "FIT_SETTINGS",
     "FitError",
     "SamplerCoordinates",
     "clip_to_prior",
     "decay_rate",
     "find_map",
     "fit",
+    "fit_settings",
     "laplace_covariance",
     "profile_linear",
     "scan_E",
@@ -472,6 +475,40 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     if bad:
         raise FitError(f"unknown sampler_options {bad}; allowed: {list(_SAMPLER_OPTIONS)}")
     return opts
+
+
+#: Forward-model and sampler settings of :func:`fit` that the model comparison
+#: (:func:`bayesbeam.compare.evaluate`, :func:`bayesbeam.compare.compare`) takes as
+#: keywords and passes on; :func:`fit_settings` completes them.
+FIT_SETTINGS = ("n_elements", "initial", "nwalkers", "target_ess", "max_steps", "min_steps")
+
+
+def fit_settings(settings: Mapping[str, Any], *, caller: str = "fit") -> dict[str, Any]:
+    """Check forward-model and sampler settings and fill in the defaults of :func:`fit`.
+
+    Parameters
+    ----------
+    settings : mapping
+        Some of :data:`FIT_SETTINGS`, by name.
+    caller : str
+        Function named in the error message.
+
+    Returns
+    -------
+    dict
+        Every name of :data:`FIT_SETTINGS`, in that order.
+
+    Raises
+    ------
+    TypeError
+        For a name that is not a fit setting, as for any unexpected keyword argument.
+    """
+    for name in settings:
+        if name not in FIT_SETTINGS:
+            raise TypeError(f"{caller}() got an unexpected keyword argument {name!r}")
+    # fit's signature is the one place the defaults are written.
+    defaults = inspect.signature(fit).parameters
+    return {name: settings.get(name, defaults[name].default) for name in FIT_SETTINGS}
 
 
 @single_blas_thread

@@ -22,7 +22,14 @@ from bayesbeam.fem import FEModel, assemble, static_tip_shape
 from bayesbeam.hysteresis import HysteresisOperator
 from bayesbeam.models import Model, parse_model
 
-__all__ = ["Forward", "ForwardError", "Response", "initial_names", "modal_properties"]
+__all__ = [
+    "Forward",
+    "ForwardError",
+    "Response",
+    "initial_names",
+    "modal_properties",
+    "parameter_columns",
+]
 
 # Admissible ranges of the physical parameters (SI); outside them a set is invalid.
 _LOWER = {
@@ -93,6 +100,52 @@ def initial_names(initial: str) -> tuple[str, ...]:
         "'impulse' (tip impulse p0, N s), 'modes:K' (first K modal amplitudes at the sensor, m) "
         "or 'state' (a fixed initial_state=(c0, v0))"
     )
+
+
+def parameter_columns(
+    theta: np.ndarray | dict,
+    names: tuple[str, ...],
+    error: type[ForwardError] = ForwardError,
+) -> np.ndarray:
+    """Parameter sets as a (B, P) array with columns ``names``.
+
+    Shared by :class:`Forward` and the forward models built on it (e.g.
+    :class:`bayesbeam.nonlinear.NonlinearForward`), so that all take the same inputs.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (B, P) or (P,), or dict of name → array
+        Parameter sets (SI units); a dict's values are broadcast together.
+    names : tuple of str
+        Column names, in order (a model's ``param_names``).
+    error : type of ForwardError, optional
+        Exception class raised for a missing name or a wrong shape.
+
+    Returns
+    -------
+    ndarray, shape (B, P)
+
+    Raises
+    ------
+    ForwardError
+        Or the given ``error`` class: a name is missing from a dict, or the shape is not
+        (B, P).
+    """
+    if isinstance(theta, dict):
+        missing = [p for p in names if p not in theta]
+        if missing:
+            raise error(f"missing parameters {missing}; need {list(names)}")
+        cols = [np.atleast_1d(np.asarray(theta[p], dtype=float)) for p in names]
+        theta = np.column_stack(np.broadcast_arrays(*cols))
+    theta = np.asarray(theta, dtype=float)
+    if theta.ndim == 1:
+        theta = theta[None, :]
+    if theta.ndim != 2 or theta.shape[1] != len(names):
+        raise error(
+            f"theta must have shape (B, {len(names)}) with columns "
+            f"{list(names)}, got {theta.shape}"
+        )
+    return theta
 
 
 def _eigh_batched(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -215,21 +268,7 @@ class Forward:
 
     # -- helpers --------------------------------------------------------------------
     def _columns(self, theta: np.ndarray | dict) -> np.ndarray:
-        if isinstance(theta, dict):
-            missing = [p for p in self.param_names if p not in theta]
-            if missing:
-                raise ForwardError(f"missing parameters {missing}; need {list(self.param_names)}")
-            cols = [np.atleast_1d(np.asarray(theta[p], dtype=float)) for p in self.param_names]
-            theta = np.column_stack(np.broadcast_arrays(*cols))
-        theta = np.asarray(theta, dtype=float)
-        if theta.ndim == 1:
-            theta = theta[None, :]
-        if theta.ndim != 2 or theta.shape[1] != len(self.param_names):
-            raise ForwardError(
-                f"theta must have shape (B, {len(self.param_names)}) with columns "
-                f"{list(self.param_names)}, got {theta.shape}"
-            )
-        return theta
+        return parameter_columns(theta, self.param_names)
 
     def check(self, theta: np.ndarray) -> np.ndarray:
         """Return the mask of admissible parameter sets.
@@ -399,6 +438,38 @@ class Forward:
         return np.concatenate([-s * omega, -np.einsum("bm,bmk->bk", s, C)], axis=1)
 
     # -- public ------------------------------------------------------------------
+    @property
+    def dt(self) -> float:
+        """Mean sample step in s (the step itself when :attr:`uniform`)."""
+        return self._dt
+
+    def modal_initial_state(
+        self, theta: np.ndarray | dict
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Modal system and initial modal state of admissible parameter sets.
+
+        The hook for models built on the linear one (e.g.
+        :class:`bayesbeam.nonlinear.NonlinearForward`): :meth:`modal_system` plus the
+        initial state those modes start from.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P), or dict
+            Admissible parameter sets (see :meth:`check`), columns :attr:`param_names`.
+
+        Returns
+        -------
+        omega, C, phi : ndarray
+            As returned by :meth:`modal_system`.
+        z0 : ndarray, shape (B, 2m)
+            Initial modal state ``[Ω q0; q0']`` at :attr:`t0` (before any propagation to
+            the first sample).
+        """
+        theta = self._columns(theta)
+        omega, C, phi = self.modal_system(theta)
+        # _initial_state needs the stiffness matrices of this very call (self._last_K).
+        return omega, C, phi, self._initial_state(theta, omega, phi)
+
     def state_space(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """First-order modal system of admissible parameter sets.
 
@@ -422,8 +493,7 @@ class Forward:
     def _state_space(
         self, theta: np.ndarray, *, check: bool
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        omega, C, phi = self.modal_system(theta)
-        z0 = self._initial_state(theta, omega, phi)
+        omega, C, phi, z0 = self.modal_initial_state(theta)
         h = self._output(omega, C, phi)
         return propagate.state_matrix(omega, C, check=check), z0, h
 

@@ -216,28 +216,21 @@ def ar1_pointwise(
 
 
 def ar1_loglik(
-    r: np.ndarray,
-    sigma: np.ndarray,
-    rho: np.ndarray,
-    *,
-    times: np.ndarray | None = None,
-    dt_ref: float | None = None,
+    r: np.ndarray, sigma: np.ndarray, rho: np.ndarray, *,
+    times: np.ndarray | None = None, dt_ref: float | None = None,
 ) -> np.ndarray:
     """Exact stationary AR(1) Gaussian log-likelihood (covariance ``sigma^2 rho^|i-j|``).
 
+    The sum over t of the terms of :func:`ar1_pointwise`.
+
     Parameters
     ----------
-    r : ndarray, shape (..., T)
-        Residuals (data - model).
-    sigma : float or ndarray, broadcastable to r.shape[:-1]
-        Marginal standard deviation of the residuals, same units as ``r``.
+    r, sigma, times, dt_ref
+        As for :func:`ar1_pointwise`: residuals (..., T), their marginal standard
+        deviation, optional sample times (T,) in s and the reference lag in s.
     rho : float or ndarray, broadcastable to r.shape[:-1]
         Lag-one correlation in (-1, 1); with ``times``, the correlation at lag
         ``dt_ref`` in [0, 1) (covariance ``sigma^2 rho^(|t_i - t_j| / dt_ref)``).
-    times : ndarray, shape (T,), optional
-        Sample times in s, for non-uniform stamps.
-    dt_ref : float, optional
-        Reference lag in s for ``rho`` (default: median step of ``times``).
 
     Returns
     -------

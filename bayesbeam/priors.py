@@ -1,39 +1,12 @@
-"""Prior distributions on named parameters and their unconstrained sampling space.
+"""Ordered sets of named priors (:class:`PriorSet`) and their TOML/JSON form.
 
-Samplers and optimisers work on a vector ``u`` (design.md, "Sampling space"). Each
-:class:`Prior` maps a physical value ``x`` to ``u`` and back and gives the density of
-``u`` *including the Jacobian* ``|dx/du|``, normalised over u::
-
-    log p(u) = log p_x(x(u)) + log |dx/du|,      ∫ p(u) du = 1.
-
-With ``log_prob(u) = log_prior_u(u) + log_lik(theta(u))`` the integral
-``∫ exp(log_prob) du`` is therefore the model evidence, whatever transform is used.
-
-Families and their transforms
------------------------------
-=================  ===================  ============================================
-family             ``u``                density of ``u``
-=================  ===================  ============================================
-``LogUniform``     ``log x``            uniform on ``[log lo, log hi]``
-``Uniform``        ``x`` (default) or   uniform on ``[lo, hi]``, or the standard
-                   ``logit`` of the     logistic density (``transform="logit"``,
-                   position in range    unbounded ``u``)
-``Normal``         ``x``                normal ``(mu, sd)``
-``LogNormal``      ``log x``            normal ``(log median, sigma)``
-``HalfNormal``     ``log x``            ``2 N(e^u; 0, s) e^u`` (half-normal in x)
-=================  ===================  ============================================
-
-Positive quantities (moduli, damping coefficients, noise scales) are sampled in log
-space: their posteriors are closer to Gaussian there and one step size fits all
-scales. ``LogUniform`` and identity ``Uniform`` leave ``u`` bounded; outside the
-bounds :meth:`Prior.log_pdf_u` is ``-inf``, which an ensemble sampler handles by
-rejecting the move. :meth:`Prior.from_u` clips ``u`` to the support first so that
-a forward model is never handed an impossible value (a zero modulus, say) even for
-a rejected proposal.
-
-Priors are immutable; :meth:`Prior.scaled` returns a widened or narrowed copy for
-prior-sensitivity studies of evidences, and :meth:`Prior.to_dict` /
-:func:`prior_from_dict` round-trip through TOML and JSON, e.g.::
+A :class:`PriorSet` maps parameter names, in the column order of a model's ``theta``
+arrays, to one-parameter priors and provides the vectorised maps between the physical
+values and the unconstrained sampling space ``u`` (density of ``u`` with the Jacobian
+included, so that ``∫ exp(log_prior_u + log_lik) du`` is the evidence). The families
+themselves (``LogUniform``, ``Uniform``, ``Normal``, ``LogNormal``, ``HalfNormal``) and
+:func:`prior_from_dict` live in :mod:`bayesbeam.prior_families` and are re-exported here.
+A TOML file overrides a model's default priors, e.g.::
 
     [priors.E]
     dist = "loguniform"
@@ -43,608 +16,26 @@ prior-sensitivity studies of evidences, and :meth:`Prior.to_dict` /
 
 from __future__ import annotations
 
-import math
 import tomllib
-from abc import ABC, abstractmethod
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
-from scipy import special
 
-__all__ = [
-    "HalfNormal",
-    "LogNormal",
-    "LogUniform",
-    "Normal",
-    "Prior",
-    "PriorError",
-    "PriorSet",
-    "Uniform",
-    "prior_from_dict",
-]
-
-_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
-# exp() arguments are clipped to this range: exp(709) is the largest finite double,
-# exp(-745) the smallest subnormal; beyond it exp would overflow (and warn).
-_EXP_LO, _EXP_HI = -745.0, 709.0
-
-
-class PriorError(ValueError):
-    """A prior specification is invalid; the message says what and how to fix it."""
-
-
-def _number(owner: str, name: str, value: Any) -> float:
-    if isinstance(value, bool):
-        raise PriorError(f"{owner}: {name} must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise PriorError(f"{owner}: {name} must be a number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise PriorError(f"{owner}: {name} must be finite, got {value!r}")
-    return v
-
-
-def _positive(owner: str, name: str, value: Any) -> float:
-    v = _number(owner, name, value)
-    if v <= 0:
-        raise PriorError(f"{owner}: {name} must be positive, got {value!r}")
-    return v
-
-
-def _check_factor(factor: Any) -> float:
-    try:
-        f = float(factor)
-    except (TypeError, ValueError):
-        raise PriorError(f"scale factor must be a positive number, got {factor!r}") from None
-    if not (math.isfinite(f) and f > 0):
-        raise PriorError(f"scale factor must be a finite positive number, got {factor!r}")
-    return f
-
-
-def _exp(u: np.ndarray) -> np.ndarray:
-    return np.exp(np.clip(u, _EXP_LO, _EXP_HI))
-
-
-@dataclass(frozen=True)
-class Prior(ABC):
-    """Base class: one-dimensional prior with a transform to the sampling space ``u``.
-
-    Subclasses are frozen dataclasses whose fields are the distribution's
-    parameters (physical units of the parameter they describe).
-    """
-
-    dist: ClassVar[str] = ""
-
-    # -- transform -----------------------------------------------------------------
-    @abstractmethod
-    def to_u(self, x: Any) -> np.ndarray:
-        """Map physical values to the sampling space.
-
-        Parameters
-        ----------
-        x : array_like
-            Physical values (units of the parameter), any shape.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``u``, same shape as ``x``.
-
-        Raises
-        ------
-        PriorError
-            Where the transform is undefined (e.g. ``x <= 0`` for a log transform).
-        """
-
-    @abstractmethod
-    def from_u(self, u: Any) -> np.ndarray:
-        """Map sampling-space values to physical values.
-
-        Parameters
-        ----------
-        u : array_like
-            Sampling-space values, any shape. Values outside :attr:`bounds_u` are
-            clipped to it first (their prior density is zero anyway).
-
-        Returns
-        -------
-        numpy.ndarray
-            Physical values, same shape as ``u``.
-        """
-
-    @abstractmethod
-    def log_pdf_u(self, u: Any) -> np.ndarray:
-        """Log density of ``u``, Jacobian included, normalised over ``u``.
-
-        Parameters
-        ----------
-        u : array_like
-            Sampling-space values, any shape.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``log p(u)``, same shape; ``-inf`` outside the support.
-        """
-
-    @abstractmethod
-    def ppf_u(self, q: Any) -> np.ndarray:
-        """Quantile function in the sampling space (prior transform of nested sampling).
-
-        Parameters
-        ----------
-        q : array_like
-            Probabilities in ``[0, 1]``, any shape.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``u`` whose prior CDF is ``q``, same shape.
-        """
-
-    @property
-    @abstractmethod
-    def bounds(self) -> tuple[float, float]:
-        """Support of the physical value ``(lo, hi)``; infinite where unbounded."""
-
-    @property
-    @abstractmethod
-    def bounds_u(self) -> tuple[float, float]:
-        """Support of ``u`` ``(lo, hi)``; infinite where unbounded."""
-
-    @abstractmethod
-    def scaled(self, factor: float) -> Prior:
-        """Return a copy whose width is multiplied by ``factor`` about its centre.
-
-        Log-space priors scale their width in ``log x`` (about the geometric centre
-        or median), linear ones in ``x``; the families' docstrings say which width.
-
-        Parameters
-        ----------
-        factor : float
-            Positive width multiplier (``0.5`` halves, ``2`` doubles).
-
-        Returns
-        -------
-        Prior
-            A new prior of the same family.
-        """
-
-    # -- shared helpers ------------------------------------------------------------
-    def log_pdf(self, x: Any) -> np.ndarray:
-        """Log density of the physical value (per unit of the parameter).
-
-        Parameters
-        ----------
-        x : array_like
-            Physical values, any shape.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``log p_x(x)``, same shape; ``-inf`` outside :attr:`bounds`.
-        """
-        x = np.asarray(x, dtype=float)
-        lo, hi = self.bounds
-        inside = (x >= lo) & (x <= hi) & np.isfinite(x)
-        if self._log_transform:
-            inside &= x > 0
-        xs = np.where(inside, x, self._inside_point())
-        u = self.to_u(xs)
-        # p_x(x) = p_u(u) |du/dx|; du/dx = 1/x for log transforms.
-        out = self.log_pdf_u(u) - self._log_dxdu(u, xs)
-        return np.where(inside, out, -np.inf)
-
-    def sample(self, rng: np.random.Generator, size: int | tuple[int, ...] | None = None):
-        """Draw physical values from the prior.
-
-        Parameters
-        ----------
-        rng : numpy.random.Generator
-            Source of randomness.
-        size : int or tuple of int, optional
-            Output shape; ``None`` gives a scalar.
-
-        Returns
-        -------
-        numpy.ndarray or float
-            Physical values of shape ``size``.
-        """
-        return self.from_u(self.sample_u(rng, size))
-
-    def sample_u(self, rng: np.random.Generator, size: int | tuple[int, ...] | None = None):
-        """Draw sampling-space values from the prior (inverse-CDF method).
-
-        Parameters
-        ----------
-        rng : numpy.random.Generator
-            Source of randomness.
-        size : int or tuple of int, optional
-            Output shape; ``None`` gives a scalar.
-
-        Returns
-        -------
-        numpy.ndarray or float
-            ``u`` of shape ``size``.
-        """
-        return self.ppf_u(rng.random(size))
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return a plain dict ``{"dist": ..., <parameters>}`` for TOML/JSON.
-
-        Returns
-        -------
-        dict
-            Inverse of :func:`prior_from_dict`.
-        """
-        out: dict[str, Any] = {"dist": self.dist}
-        for f in fields(self):
-            out[f.name] = getattr(self, f.name)
-        return out
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> Prior:
-        """Build a prior from :meth:`to_dict` output; see :func:`prior_from_dict`.
-
-        Parameters
-        ----------
-        d : mapping
-            ``{"dist": name, <parameters>}``.
-
-        Returns
-        -------
-        Prior
-        """
-        return prior_from_dict(d)
-
-    # Subclass hooks for log_pdf.
-    _log_transform: ClassVar[bool] = False
-
-    def _log_dxdu(self, u: np.ndarray, x: np.ndarray) -> np.ndarray:
-        if self._log_transform:
-            return u  # x = e^u: log|dx/du| = u
-        return np.zeros_like(u)
-
-    def _inside_point(self) -> float:
-        return float(self.from_u(self.ppf_u(0.5)))
-
-
-def _bounded_log_pdf(u: Any, lo: float, hi: float, log_density: float) -> np.ndarray:
-    u = np.asarray(u, dtype=float)
-    return np.where((u >= lo) & (u <= hi), log_density, -np.inf)
-
-
-@dataclass(frozen=True)
-class LogUniform(Prior):
-    """Log-uniform (reciprocal) prior on ``[lo, hi]``, ``0 < lo < hi``; ``u = log x``.
-
-    Density ``p(x) = 1 / (x log(hi/lo))``; ``u`` is uniform on ``[log lo, log hi]``.
-    :meth:`scaled` multiplies the width ``log(hi/lo)`` about the geometric centre
-    ``sqrt(lo hi)``.
-    """
-
-    lo: float
-    hi: float
-    dist: ClassVar[str] = "loguniform"
-    _log_transform: ClassVar[bool] = True
-
-    def __post_init__(self) -> None:
-        lo = _positive("LogUniform", "lo", self.lo)
-        hi = _positive("LogUniform", "hi", self.hi)
-        if not lo < hi:
-            raise PriorError(f"LogUniform: need lo < hi, got lo={lo!r}, hi={hi!r}")
-        object.__setattr__(self, "lo", lo)
-        object.__setattr__(self, "hi", hi)
-
-    @property
-    def bounds(self) -> tuple[float, float]:  # noqa: D102 - documented on Prior
-        return (self.lo, self.hi)
-
-    @property
-    def bounds_u(self) -> tuple[float, float]:  # noqa: D102
-        return (math.log(self.lo), math.log(self.hi))
-
-    def to_u(self, x: Any) -> np.ndarray:  # noqa: D102
-        return _log_of_positive(self, x)
-
-    def from_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        lo, hi = self.bounds_u
-        # exp(log lo) may differ from lo in the last bit: clip in x as well.
-        return np.clip(np.exp(np.clip(np.asarray(u, dtype=float), lo, hi)), self.lo, self.hi)
-
-    def log_pdf_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        lo, hi = self.bounds_u
-        return _bounded_log_pdf(u, lo, hi, -math.log(hi - lo))
-
-    def ppf_u(self, q: Any) -> np.ndarray:  # noqa: D102
-        lo, hi = self.bounds_u
-        return lo + np.asarray(q, dtype=float) * (hi - lo)
-
-    def scaled(self, factor: float) -> LogUniform:  # noqa: D102
-        f = _check_factor(factor)
-        lo, hi = self.bounds_u
-        c, w = 0.5 * (lo + hi), 0.5 * (hi - lo) * f
-        return LogUniform(math.exp(c - w), math.exp(c + w))
-
-
-@dataclass(frozen=True)
-class Uniform(Prior):
-    """Uniform prior on ``[lo, hi]``.
-
-    ``transform="identity"`` (default) samples ``u = x`` inside the bounds (density
-    ``1/(hi-lo)``, ``-inf`` outside): the posterior keeps its shape in ``u``.
-    ``transform="logit"`` samples ``u = logit((x-lo)/(hi-lo))``, which is unbounded
-    and has the standard logistic density; use it for optimisers that cannot take
-    bounds. Both give the same evidence. :meth:`scaled` multiplies ``hi - lo``
-    about the midpoint (the caller must keep physical limits, e.g. ``|rho| < 1``).
-    """
-
-    lo: float
-    hi: float
-    transform: str = "identity"
-    dist: ClassVar[str] = "uniform"
-
-    def __post_init__(self) -> None:
-        lo = _number("Uniform", "lo", self.lo)
-        hi = _number("Uniform", "hi", self.hi)
-        if not lo < hi:
-            raise PriorError(f"Uniform: need lo < hi, got lo={lo!r}, hi={hi!r}")
-        if self.transform not in ("identity", "logit"):
-            raise PriorError(
-                f"Uniform: transform must be 'identity' or 'logit', got {self.transform!r}"
-            )
-        object.__setattr__(self, "lo", lo)
-        object.__setattr__(self, "hi", hi)
-
-    @property
-    def _logit(self) -> bool:
-        return self.transform == "logit"
-
-    @property
-    def bounds(self) -> tuple[float, float]:  # noqa: D102
-        return (self.lo, self.hi)
-
-    @property
-    def bounds_u(self) -> tuple[float, float]:  # noqa: D102
-        return (-math.inf, math.inf) if self._logit else (self.lo, self.hi)
-
-    def to_u(self, x: Any) -> np.ndarray:  # noqa: D102
-        x = np.asarray(x, dtype=float)
-        if not self._logit:
-            return x.copy()
-        if np.any(~((x >= self.lo) & (x <= self.hi))):
-            raise PriorError(
-                f"Uniform(logit): values must lie in [{self.lo}, {self.hi}] to map to u"
-            )
-        return special.logit((x - self.lo) / (self.hi - self.lo))
-
-    def from_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        u = np.asarray(u, dtype=float)
-        if self._logit:
-            x = self.lo + (self.hi - self.lo) * special.expit(u)
-        else:
-            x = u
-        return np.clip(x, self.lo, self.hi)
-
-    def log_pdf_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        u = np.asarray(u, dtype=float)
-        if self._logit:
-            # standard logistic density: log σ(u) + log σ(-u), written stably.
-            return -np.logaddexp(0.0, u) - np.logaddexp(0.0, -u)
-        return _bounded_log_pdf(u, self.lo, self.hi, -math.log(self.hi - self.lo))
-
-    def ppf_u(self, q: Any) -> np.ndarray:  # noqa: D102
-        q = np.asarray(q, dtype=float)
-        if self._logit:
-            return special.logit(q)
-        return self.lo + q * (self.hi - self.lo)
-
-    def log_pdf(self, x: Any) -> np.ndarray:  # noqa: D102 - documented on Prior
-        # Direct form: the generic u-route would give -inf - (-inf) at the logit edges.
-        x = np.asarray(x, dtype=float)
-        inside = (x >= self.lo) & (x <= self.hi)
-        return np.where(inside, -math.log(self.hi - self.lo), -np.inf)
-
-    def scaled(self, factor: float) -> Uniform:  # noqa: D102
-        f = _check_factor(factor)
-        c, w = 0.5 * (self.lo + self.hi), 0.5 * (self.hi - self.lo) * f
-        return Uniform(c - w, c + w, self.transform)
-
-    def to_dict(self) -> dict[str, Any]:  # noqa: D102
-        d = super().to_dict()
-        if self.transform == "identity":
-            del d["transform"]  # keep the common case short in TOML files
-        return d
-
-
-@dataclass(frozen=True)
-class Normal(Prior):
-    """Normal prior ``N(mu, sd)`` on an unbounded parameter; ``u = x``.
-
-    :meth:`scaled` multiplies ``sd``.
-    """
-
-    mu: float
-    sd: float
-    dist: ClassVar[str] = "normal"
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mu", _number("Normal", "mu", self.mu))
-        object.__setattr__(self, "sd", _positive("Normal", "sd", self.sd))
-
-    @property
-    def bounds(self) -> tuple[float, float]:  # noqa: D102
-        return (-math.inf, math.inf)
-
-    @property
-    def bounds_u(self) -> tuple[float, float]:  # noqa: D102
-        return (-math.inf, math.inf)
-
-    def to_u(self, x: Any) -> np.ndarray:  # noqa: D102
-        return np.array(x, dtype=float)
-
-    def from_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        return np.array(u, dtype=float)
-
-    def log_pdf_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        z = (np.asarray(u, dtype=float) - self.mu) / self.sd
-        return -0.5 * z * z - math.log(self.sd) - _LOG_SQRT_2PI
-
-    def ppf_u(self, q: Any) -> np.ndarray:  # noqa: D102
-        return self.mu + self.sd * special.ndtri(np.asarray(q, dtype=float))
-
-    def scaled(self, factor: float) -> Normal:  # noqa: D102
-        return Normal(self.mu, self.sd * _check_factor(factor))
-
-
-@dataclass(frozen=True)
-class LogNormal(Prior):
-    """Log-normal prior: ``log x ~ N(log median, sigma)``; ``u = log x``.
-
-    ``median`` is in the parameter's units, ``sigma`` is dimensionless (natural-log
-    standard deviation). :meth:`scaled` multiplies ``sigma``.
-    """
-
-    median: float
-    sigma: float
-    dist: ClassVar[str] = "lognormal"
-    _log_transform: ClassVar[bool] = True
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "median", _positive("LogNormal", "median", self.median))
-        object.__setattr__(self, "sigma", _positive("LogNormal", "sigma", self.sigma))
-
-    @property
-    def bounds(self) -> tuple[float, float]:  # noqa: D102
-        return (0.0, math.inf)
-
-    @property
-    def bounds_u(self) -> tuple[float, float]:  # noqa: D102
-        return (-math.inf, math.inf)
-
-    def to_u(self, x: Any) -> np.ndarray:  # noqa: D102
-        return _log_of_positive(self, x)
-
-    def from_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        return _exp(np.asarray(u, dtype=float))
-
-    def log_pdf_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        z = (np.asarray(u, dtype=float) - math.log(self.median)) / self.sigma
-        return -0.5 * z * z - math.log(self.sigma) - _LOG_SQRT_2PI
-
-    def ppf_u(self, q: Any) -> np.ndarray:  # noqa: D102
-        return math.log(self.median) + self.sigma * special.ndtri(np.asarray(q, dtype=float))
-
-    def scaled(self, factor: float) -> LogNormal:  # noqa: D102
-        return LogNormal(self.median, self.sigma * _check_factor(factor))
-
-
-@dataclass(frozen=True)
-class HalfNormal(Prior):
-    """Half-normal prior on ``x > 0`` with scale ``scale``; ``u = log x``.
-
-    ``p(x) = 2 N(x; 0, scale)`` for ``x > 0``; in ``u``:
-    ``p(u) = 2 N(e^u; 0, scale) e^u``. Weakly informative for noise scales.
-    :meth:`scaled` multiplies ``scale``.
-    """
-
-    scale: float
-    dist: ClassVar[str] = "halfnormal"
-    _log_transform: ClassVar[bool] = True
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "scale", _positive("HalfNormal", "scale", self.scale))
-
-    @property
-    def bounds(self) -> tuple[float, float]:  # noqa: D102
-        return (0.0, math.inf)
-
-    @property
-    def bounds_u(self) -> tuple[float, float]:  # noqa: D102
-        return (-math.inf, math.inf)
-
-    def to_u(self, x: Any) -> np.ndarray:  # noqa: D102
-        return _log_of_positive(self, x)
-
-    def from_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        return _exp(np.asarray(u, dtype=float))
-
-    def log_pdf_u(self, u: Any) -> np.ndarray:  # noqa: D102
-        u = np.asarray(u, dtype=float)
-        # z = x/scale; clip the exponent so z*z cannot overflow (z = e^300 already
-        # gives log p ~ -1e260, i.e. numerically zero density).
-        z = np.exp(np.clip(u - math.log(self.scale), _EXP_LO, 300.0))
-        return math.log(2.0) - _LOG_SQRT_2PI - math.log(self.scale) - 0.5 * z * z + u
-
-    def ppf_u(self, q: Any) -> np.ndarray:  # noqa: D102
-        q = np.asarray(q, dtype=float)
-        with np.errstate(divide="ignore"):  # q = 0 maps to x = 0, u = -inf exactly
-            return np.log(self.scale * special.ndtri(0.5 * (1.0 + q)))
-
-    def scaled(self, factor: float) -> HalfNormal:  # noqa: D102
-        return HalfNormal(self.scale * _check_factor(factor))
-
-
-def _log_of_positive(prior: Prior, x: Any) -> np.ndarray:
-    x = np.asarray(x, dtype=float)
-    if np.any(~(x > 0)):
-        raise PriorError(
-            f"{type(prior).__name__} is sampled in log space: values must be positive "
-            f"to map to u, got min {np.nanmin(x) if x.size else x!r}"
-        )
-    return np.log(x)
-
-
-_FAMILIES: dict[str, type[Prior]] = {
-    cls.dist: cls for cls in (LogUniform, Uniform, Normal, LogNormal, HalfNormal)
-}
-
-
-def prior_from_dict(d: Mapping[str, Any]) -> Prior:
-    """Build a prior from ``{"dist": name, <parameters>}`` (a TOML table or JSON object).
-
-    Parameters
-    ----------
-    d : mapping
-        ``dist`` is one of ``loguniform`` (``lo``, ``hi``), ``uniform`` (``lo``,
-        ``hi``, optional ``transform``), ``normal`` (``mu``, ``sd``), ``lognormal``
-        (``median``, ``sigma``), ``halfnormal`` (``scale``); case-insensitive.
-
-    Returns
-    -------
-    Prior
-
-    Raises
-    ------
-    PriorError
-        For an unknown family, missing or unexpected keys, or invalid values.
-    """
-    if isinstance(d, Prior):
-        return d
-    if not isinstance(d, Mapping):
-        raise PriorError(f"a prior must be a table/dict with a 'dist' key, got {d!r}")
-    params = dict(d)
-    dist = params.pop("dist", None)
-    if not isinstance(dist, str):
-        raise PriorError(f"prior {d!r} needs a 'dist' key, one of {sorted(_FAMILIES)}")
-    cls = _FAMILIES.get(dist.strip().lower().replace("-", "").replace("_", ""))
-    if cls is None:
-        raise PriorError(f"unknown prior dist {dist!r}; choose one of {sorted(_FAMILIES)}")
-    names = [f.name for f in fields(cls)]
-    required = [f.name for f in fields(cls) if f.default is MISSING]
-    unknown = sorted(set(params) - set(names))
-    missing = [n for n in required if n not in params]
-    if unknown or missing:
-        raise PriorError(
-            f"{cls.dist} prior takes keys {names}"
-            + (f"; unexpected {unknown}" if unknown else "")
-            + (f"; missing {missing}" if missing else "")
-        )
-    return cls(**params)
+from bayesbeam.prior_families import (
+    HalfNormal,
+    LogNormal,
+    LogUniform,
+    Normal,
+    Prior,
+    PriorError,
+    Uniform,
+    prior_from_dict,
+)
+
+__all__ = ["PriorSet", "Prior", "PriorError", "prior_from_dict",
+           "HalfNormal", "LogNormal", "LogUniform", "Normal", "Uniform"]
 
 
 class PriorSet(Mapping[str, Prior]):
@@ -740,6 +131,17 @@ class PriorSet(Mapping[str, Prior]):
             )
         return a
 
+    def _per_column(self, a: Any, what: str, method: str) -> np.ndarray:
+        """Apply the one-parameter map ``method`` of each prior to its column of ``a``."""
+        a = self._cols(a, what)
+        out = np.empty_like(a)
+        for j, (name, p) in enumerate(self._priors.items()):
+            try:
+                out[..., j] = getattr(p, method)(a[..., j])
+            except PriorError as exc:
+                raise PriorError(f"parameter {name!r}: {exc}") from None
+        return out
+
     # -- vectorised maps -----------------------------------------------------------
     def log_prior_u(self, U: Any) -> np.ndarray:
         """Sum of the per-parameter log densities in ``u`` (Jacobians included).
@@ -763,20 +165,20 @@ class PriorSet(Mapping[str, Prior]):
     def to_theta(self, U: Any) -> np.ndarray:
         """Map sampling-space points to physical parameter values.
 
+        Each column goes through its prior's :meth:`~bayesbeam.priors.Prior.from_u`, so
+        points outside the support are clipped to it.
+
         Parameters
         ----------
         U : array_like, shape (..., ndim)
+            Sampling-space points, columns in :attr:`names` order.
 
         Returns
         -------
         numpy.ndarray, shape (..., ndim)
             Physical values (SI units of each parameter).
         """
-        U = self._cols(U, "U")
-        out = np.empty_like(U)
-        for j, p in enumerate(self._priors.values()):
-            out[..., j] = p.from_u(U[..., j])
-        return out
+        return self._per_column(U, "U", "from_u")
 
     def to_u(self, theta: Any) -> np.ndarray:
         """Map physical parameter values to the sampling space.
@@ -784,10 +186,12 @@ class PriorSet(Mapping[str, Prior]):
         Parameters
         ----------
         theta : array_like, shape (..., ndim)
+            Physical values, columns in :attr:`names` order.
 
         Returns
         -------
         numpy.ndarray, shape (..., ndim)
+            ``u`` of every point.
 
         Raises
         ------
@@ -795,14 +199,7 @@ class PriorSet(Mapping[str, Prior]):
             Where a transform is undefined (e.g. a non-positive value of a
             log-space parameter); the message names the parameter.
         """
-        theta = self._cols(theta, "theta")
-        out = np.empty_like(theta)
-        for j, (name, p) in enumerate(self._priors.items()):
-            try:
-                out[..., j] = p.to_u(theta[..., j])
-            except PriorError as exc:
-                raise PriorError(f"parameter {name!r}: {exc}") from None
-        return out
+        return self._per_column(theta, "theta", "to_u")
 
     def from_unit_cube(self, Q: Any) -> np.ndarray:
         """Prior transform for nested sampling: unit-cube points to ``u``.
@@ -817,11 +214,7 @@ class PriorSet(Mapping[str, Prior]):
         numpy.ndarray, shape (..., ndim)
             ``u`` with independent marginal prior CDFs equal to ``Q``.
         """
-        Q = self._cols(Q, "Q")
-        out = np.empty_like(Q)
-        for j, p in enumerate(self._priors.values()):
-            out[..., j] = p.ppf_u(Q[..., j])
-        return out
+        return self._per_column(Q, "Q", "ppf_u")
 
     def sample_u(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """Draw ``n`` independent prior points in the sampling space.
@@ -829,7 +222,9 @@ class PriorSet(Mapping[str, Prior]):
         Parameters
         ----------
         rng : numpy.random.Generator
+            Source of randomness.
         n : int
+            Number of points.
 
         Returns
         -------
@@ -838,16 +233,17 @@ class PriorSet(Mapping[str, Prior]):
         return self.from_unit_cube(rng.random((int(n), self.ndim)))
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """Draw ``n`` independent prior points in physical units.
+        """Draw ``n`` independent prior points in physical units (:meth:`sample_u` mapped).
 
         Parameters
         ----------
-        rng : numpy.random.Generator
-        n : int
+        rng, n
+            Source of randomness and number of points, as for :meth:`sample_u`.
 
         Returns
         -------
         numpy.ndarray, shape (n, ndim)
+            Physical values.
         """
         return self.to_theta(self.sample_u(rng, n))
 
@@ -863,6 +259,7 @@ class PriorSet(Mapping[str, Prior]):
         Returns
         -------
         PriorSet
+            A new set in the same parameter order; this one is unchanged.
 
         Raises
         ------

@@ -53,6 +53,30 @@ BETA1 = 1.875104069
 ZETA_RANGE = (1e-6, 0.2)
 
 
+def _mode1_amplitude(trial: Trial, order: int) -> float:
+    """Estimate the initial first-mode tip-displacement amplitude of a record, m.
+
+    Band-pass + Hilbert envelope around the measured first frequency
+    (:func:`bayesbeam.modal_id.band_modal_estimate`), extrapolated back over the trimmed
+    start with the fitted decay rate, divided by ω^order for velocity/acceleration
+    records. The record's peak is no substitute: the acceleration of a release is
+    dominated by the higher modes (on an 8-element 0.4 m strip its first sample is 27
+    times the mode-1 amplitude). Falls back to the peak when no envelope can be fitted.
+    """
+    from bayesbeam.modal_id import band_modal_estimate
+
+    t = np.asarray(trial.times, dtype=float)
+    y = np.asarray(trial.values, dtype=float)
+    f1 = first_frequency(t, y)
+    w = 2 * np.pi * f1
+    trim = 0.1
+    est = band_modal_estimate(t, y, f1, trim=trim)
+    if est is None or not (np.isfinite(est.amplitude) and np.isfinite(est.decay_rate)):
+        return float(np.max(np.abs(y))) / w**order
+    t_trim = trim * (t[-1] - t[0])
+    return float(est.amplitude * np.exp(max(est.decay_rate, 0.0) * t_trim)) / w**order
+
+
 def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5) -> float:
     """First natural frequency in Hz seen in a record's spectrum.
 
@@ -156,7 +180,7 @@ def default_priors(
     tip_mass                  LogUniform(1e-3, 0.5) × beam mass
     root_spring               LogUniform: κ = k L/(E_ref I) in [1, 1e4]
     stiffness_gradient        Uniform(-1, 1)
-    drag, friction            LogUniform: equivalent ζ1 at the data's amplitude in [1e-5, 0.05]
+    drag, friction            LogUniform: equivalent ζ1 at the data's amplitude in [1e-7, 0.05]
     w0, p0, A_k, B_k          Uniform(-s, s), s generous (10× the data's scale)
     sigma                     LogUniform(1e-4 σ_y, 2 σ_y), σ_y = sd of the data
     rho                       Uniform(0, 0.995)
@@ -215,12 +239,18 @@ def default_priors(
             out[n] = Uniform(-s, s)
         elif n in ("drag", "friction"):
             # Equivalent first-mode damping ratio per unit coefficient at the record's
-            # displacement scale (bayesbeam.nonlinear); the prior spans ζ 1e-5 .. 0.05.
+            # initial mode-1 amplitude (bayesbeam.nonlinear); the prior spans ζ 1e-7 ..
+            # 0.05. The peak of an acceleration release is set by the higher modes, so
+            # it would overstate the mode-1 amplitude (8x on a 0.4 m strip) and shift
+            # both ends. The lower end is far below what a record can see: friction's ζ
+            # grows as 1/amplitude while the record decays, and "no friction" must stay
+            # within reach.
             from bayesbeam.nonlinear import amplitude_damping_scales
 
+            amp = max(_mode1_amplitude(trial, order), 1e-9)
             k = dict(zip(("drag", "friction"), amplitude_damping_scales(
-                beam, E_ref, max(disp_scale, 1e-9), n_elements=n_elements), strict=True))[n]
-            out[n] = LogUniform(1e-5 / k, 0.05 / k)
+                beam, E_ref, amp, n_elements=n_elements), strict=True))[n]
+            out[n] = LogUniform(1e-7 / k, 0.05 / k)
         elif n == "sigma":
             out[n] = LogUniform(1e-4 * sd_y, 2 * sd_y)
         elif n == "rho":

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam.jsonutil import json_default
 from bayesbeam.priors import PriorSet
 from bayesbeam.sampling import Chain
 
@@ -51,24 +52,9 @@ class ResultError(ValueError):
     """Inconsistent result data; the message says what does not match."""
 
 
-def _jsonable(obj: Any) -> Any:
-    """``json.dumps`` default: numpy scalars/arrays, paths and mappings to JSON types."""
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, Mapping):
-        return dict(obj)
-    if isinstance(obj, (set, frozenset, tuple)):
-        return list(obj)
-    raise TypeError(f"cannot write {type(obj).__name__} to JSON: {obj!r}")
-
-
 def _dumps(obj: Any, **kw: Any) -> str:
     # allow_nan: tau may be inf when it could not be estimated; json writes Infinity.
-    return json.dumps(obj, default=_jsonable, allow_nan=True, **kw)
+    return json.dumps(obj, default=json_default, allow_nan=True, **kw)
 
 
 def _version(dist: str) -> str:
@@ -471,7 +457,7 @@ class FitResult:
         _require_h5netcdf()
         idata.to_netcdf(nc, engine="h5netcdf")
         js = outdir / "summary.json"
-        text = json.dumps(self.to_json_dict(), default=_jsonable, allow_nan=False, indent=2)
+        text = json.dumps(self.to_json_dict(), default=json_default, allow_nan=False, indent=2)
         js.write_text(text + "\n", encoding="utf-8")
         return {"netcdf": nc, "summary": js}
 

@@ -10,8 +10,7 @@ hidden one), the equivalents, Δ log Z ± error of the named cause, and the wall
 
 Reference sizes (factor 1): kv ζ1 = 0.08 %; sh b = L, ζ1 = 0.2 %; tip mass 5 % of the
 beam mass; root spring lowering f1 by 10 % (displacement) / 3 % (acceleration);
-stiffness gradient EI ±20 %; quadratic drag with ζ = 0.6 % at the initial amplitude
-(plus 1 mN of clamp friction, scaled alike);
+stiffness gradient EI ±20 %; quadratic drag with ζ = 0.6 % at the initial amplitude;
 AR(1) rho = 0.8; offset 5 % of the amplitude. Displacement trials are taps (tip
 impulse), acceleration trials releases from 1 cm (see tests/test_diagnose.py for why).
 
@@ -115,9 +114,7 @@ def make_trial(cause: str, size: float, quantity: str, seed: int = 0) -> tuple[T
     elif cause == "amplitude_damping":
         k_drag, _ = amplitude_damping_scales(BEAM, E, 0.01, n_elements=N_EL)
         model = "viscous+kv+amplitude_damping"
-        # Weak clamp friction too (1 mN at size 1): the default friction prior does not
-        # reach 0, and on a high-SNR record its lower end is visible.
-        params.update(drag=0.006 * size / k_drag, friction=1e-3 * size)
+        params.update(drag=0.006 * size / k_drag, friction=0.0)
     elif cause == "ar1_noise":
         rho = 0.8 * size
     elif cause == "sensor_offset":

@@ -288,6 +288,14 @@ def test_evaluate_reuses_a_fit(narrow_kernel_comparison):
         evaluate(trial, "viscous", result=score.result)
 
 
+def test_misspelt_fit_setting_fails_before_any_fit():
+    trial = narrow_trial()
+    with pytest.raises(TypeError, match="compare"):
+        compare(trial, MODELS, target_es=10)
+    with pytest.raises(TypeError, match="evaluate"):
+        evaluate(trial, "viscous", nwalker=8)
+
+
 def test_compare_rejects_bad_prior_odds(narrow_kernel_comparison):
     from bayesbeam.compare import compare_scores
 

@@ -28,8 +28,7 @@ root_spring             f1 -3 % (acceleration); f1 -10 % (displacement: at -3 % 
                         Δ log Z ≈ 2.3 < 3)
 stiffness_gradient      EI ±20 % along the span (falling toward the tip, g = -0.4)
 amplitude_damping       quadratic drag with ζ_drag = 0.6 % at the initial amplitude
-                        (the decay rate starts ~2.6x its small-amplitude value) and
-                        weak clamp friction (1 mN: ζ 0.1 % at 1 cm)
+                        (the decay rate starts ~2.6x its small-amplitude value)
 ar1_noise               AR(1) noise with rho = 0.8
 sensor_offset           offset of 5 % of the amplitude (sqrt(2) x RMS)
 ======================  =====================================================
@@ -157,10 +156,7 @@ def case(cause, quantity):
         from bayesbeam.nonlinear import amplitude_damping_scales
 
         k_drag, _ = amplitude_damping_scales(BEAM, E, 0.01, n_elements=N_EL)
-        # Weak clamp friction too (1 mN, ζ 0.1 % at 1 cm): the default friction prior
-        # starts at ζ = 1e-5 at the record's amplitude, and on a 3 s acceleration record
-        # even that is visible, so friction = 0 would lie outside every candidate model.
-        p = {**BASE, "drag": 0.006 / k_drag, "friction": 1e-3}
+        p = {**BASE, "drag": 0.006 / k_drag, "friction": 0.0}
         return (*make_trial("viscous+kv+amplitude_damping", p, quantity, duration=3.0,
                             fs=256.0), "viscous+kv")
     if cause == "ar1_noise":
