@@ -76,13 +76,7 @@ def uniform_grid(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.
     dt : float
         Mean step in s.
     """
-    t = np.asarray(times, dtype=float)
-    y = np.asarray(values, dtype=float)
-    if t.ndim != 1 or t.shape != y.shape or t.size < 8:
-        raise SignatureError(
-            f"times and values must be 1-D arrays of the same length >= 8, got {t.shape} "
-            f"and {y.shape}"
-        )
+    t, y = _as_series(times, values)
     dt = float((t[-1] - t[0]) / (t.size - 1))
     grid = t[0] + dt * np.arange(t.size)
     if np.max(np.abs(grid - t)) <= 1e-6 * dt:
@@ -390,7 +384,8 @@ def _fit_modes(t: np.ndarray, y: np.ndarray, f0: np.ndarray, s0: np.ndarray, *,
     return {"p": p, "se": se_of(res.jac), "coef": coef, "se_lin": se_of(B), "K": K}
 
 
-def _check_series(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _as_series(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return times and values as float arrays, checked: 1-D, same length, at least 8."""
     t = np.asarray(times, dtype=float)
     y = np.asarray(values, dtype=float)
     if t.ndim != 1 or t.shape != y.shape or t.size < 8:
@@ -398,6 +393,11 @@ def _check_series(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np
             f"times and values must be 1-D arrays of the same length >= 8, got {t.shape} "
             f"and {y.shape}"
         )
+    return t, y
+
+
+def _check_series(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t, y = _as_series(times, values)
     return t - t[0], y
 
 
@@ -564,7 +564,6 @@ def decay_rate_vs_amplitude(
     DecayAmplitude or None
         None when the mode is not measurable.
     """
-    _check_series(times, values)
     t, y, dt = uniform_grid(times, values)
     t = t - t[0]
     nyq = 0.5 / dt

@@ -53,13 +53,14 @@ BETA1 = 1.875104069
 ZETA_RANGE = (1e-6, 0.2)
 
 
-def _mode1_amplitude(trial: Trial, order: int) -> float:
+def _mode1_amplitude(trial: Trial, order: int, n_elements: int) -> float:
     """Estimate the initial first-mode tip-displacement amplitude of a record, m.
 
     Band-pass + Hilbert envelope around the measured first frequency
     (:func:`bayesbeam.modal_id.band_modal_estimate`), extrapolated back over the trimmed
     start with the fitted decay rate, divided by ω^order for velocity/acceleration
-    records. The record's peak is no substitute: the acceleration of a release is
+    records and scaled from the sensor to the tip by the nominal first mode shape (rigid
+    clamp). The record's peak is no substitute: the acceleration of a release is
     dominated by the higher modes (on an 8-element 0.4 m strip its first sample is 27
     times the mode-1 amplitude). Falls back to the peak when no envelope can be fitted.
     """
@@ -72,9 +73,15 @@ def _mode1_amplitude(trial: Trial, order: int) -> float:
     trim = 0.1
     est = band_modal_estimate(t, y, f1, trim=trim)
     if est is None or not (np.isfinite(est.amplitude) and np.isfinite(est.decay_rate)):
-        return float(np.max(np.abs(y))) / w**order
-    t_trim = trim * (t[-1] - t[0])
-    return float(est.amplitude * np.exp(max(est.decay_rate, 0.0) * t_trim)) / w**order
+        amp = float(np.max(np.abs(y)))
+    else:
+        amp = float(est.amplitude * np.exp(max(est.decay_rate, 0.0) * trim * (t[-1] - t[0])))
+    beam = trial.beam
+    fe = assemble(beam, n_elements, root_dof=False)
+    phi1 = sla.eigh(fe.K, fe.M, subset_by_index=[0, 0])[1][:, 0]
+    x_s = beam.length if beam.sensor_position is None else beam.sensor_position
+    ratio = abs(float(fe.tip @ phi1) / float(fe.shape([x_s])[0] @ phi1))
+    return amp / w**order * ratio
 
 
 def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5) -> float:
@@ -247,7 +254,7 @@ def default_priors(
             # within reach.
             from bayesbeam.nonlinear import amplitude_damping_scales
 
-            amp = max(_mode1_amplitude(trial, order), 1e-9)
+            amp = max(_mode1_amplitude(trial, order, n_elements), 1e-9)
             k = dict(zip(("drag", "friction"), amplitude_damping_scales(
                 beam, E_ref, amp, n_elements=n_elements), strict=True))[n]
             out[n] = LogUniform(1e-7 / k, 0.05 / k)

@@ -56,7 +56,7 @@ from bayesbeam.beam import Beam
 from bayesbeam.diagnose import CATALOGUE, diagnose
 from bayesbeam.nonlinear import NonlinearForward, amplitude_damping_scales
 from bayesbeam.problem import BETA1
-from bayesbeam.simulate import simulate_signal
+from bayesbeam.simulate import simulate_signal, stationary_ar1
 from bayesbeam.trial import Trial
 
 L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9
@@ -133,11 +133,7 @@ def make_trial(cause: str, size: float, quantity: str, seed: int = 0) -> tuple[T
     rng = np.random.default_rng(seed)
     z = rng.standard_normal(t.size)
     if rho is not None:
-        e = np.empty(t.size)
-        e[0] = z[0]
-        for i in range(1, t.size):
-            e[i] = rho * e[i - 1] + np.sqrt(1 - rho**2) * z[i]
-        z = e
+        z = stationary_ar1(z, rho)
     y = y + 0.01 * rms * z + offset * np.sqrt(2) * rms
     name = f"{cause}-x{size:g}-{quantity}"
     return Trial(times=t, values=y, quantity=quantity, beam=beam, name=name), initial, baseline
