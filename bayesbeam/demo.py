@@ -199,11 +199,11 @@ def run_diagnosis_task(spec: Mapping[str, Any]) -> tuple[dict[str, bytes], dict[
     import tempfile
 
     from bayesbeam.diagnose import diagnose
-    from bayesbeam.executor import _TASK_LOCK, _single_thread
+    from bayesbeam.tasks import _TASK_LOCK, _single_thread
     from bayesbeam.trial import read_trial
 
     t0 = time.perf_counter()
-    with _TASK_LOCK, _single_thread():  # see bayesbeam.executor.run_fit_task
+    with _TASK_LOCK, _single_thread():  # see bayesbeam.tasks.run_fit_task
         trial = read_trial(spec["trial_file"])
         d = diagnose(
             trial, spec["baseline"], seed=int(spec["seed"]), max_rounds=int(spec["max_rounds"]),

@@ -25,6 +25,7 @@ import scipy.optimize as sopt
 import scipy.signal as ssig
 from scipy.special import logsumexp
 
+from bayesbeam.convergence import autocorr_time, ess_rhat
 from bayesbeam.models import Model, parse_model
 from bayesbeam.priors import HalfNormal, LogNormal, LogUniform
 from bayesbeam.problem import BETA1, Problem, first_frequency
@@ -437,25 +438,6 @@ class SamplerCoordinates:
         return U
 
 
-def _u_diagnostics(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """τ, bulk ESS and split R-hat of post-burn-in samples (nsteps, nwalkers, ndim).
-
-    Same estimators as :mod:`bayesbeam.sampling` (emcee's τ with c = 5; ArviZ bulk
-    ESS and rank R-hat with walkers as chains), applied to the parameters themselves.
-    """
-    import arviz
-    import emcee
-
-    with np.errstate(invalid="ignore", divide="ignore"):
-        tau = emcee.autocorr.integrated_time(samples, c=5, tol=0, quiet=True)
-    x = np.ascontiguousarray(np.swapaxes(samples, 0, 1))
-    ess = np.asarray(arviz.ess(x, chain_axis=0, draw_axis=1, method="bulk"), dtype=float)
-    rhat = np.asarray(arviz.rhat(x, chain_axis=0, draw_axis=1, method="rank"), dtype=float)
-    fin = np.isfinite
-    return (np.where(fin(tau), tau, np.inf), np.where(fin(ess), ess, 0.0),
-            np.where(fin(rhat), rhat, np.inf))
-
-
 def _moves() -> list:
     # Differential-evolution proposals (ter Braak 2006; ter Braak & Vrugt 2008) mix much
     # faster than the default stretch move on these near-Gaussian, correlated posteriors
@@ -611,7 +593,10 @@ def fit(
         # Back to u. Convergence was judged in the sampler's coordinates; τ, ESS and
         # R-hat are reported for the parameters themselves.
         u_samples = coords.to_u(chain.samples)
-        tau, ess, rhat = _u_diagnostics(u_samples)
+        # Same estimators as the sampler's stopping rule (tol 0: τ as estimated, no
+        # length requirement here; that was judged in the sampler's coordinates).
+        tau, _ = autocorr_time(u_samples, 0.0)
+        ess, rhat = ess_rhat(u_samples)
         chain = dataclasses.replace(chain, samples=u_samples, tau=tau, ess=ess, rhat=rhat)
     samples = chain.samples
     X = problem.theta(samples.reshape(-1, ndim))

@@ -3,11 +3,11 @@
 :func:`run_emcee` runs an affine-invariant ensemble sampler (Goodman & Weare 2010,
 emcee: Foreman-Mackey et al. 2013) on a *vectorised* log-probability over the
 unconstrained sampling space ``u`` (see :mod:`bayesbeam.priors`), in chunks of
-``check_every`` steps, and stops when all of these hold after a chunk:
+``check_every`` steps, and stops when all of these hold after a chunk (the rule
+and its estimators are in :mod:`bayesbeam.convergence`):
 
 1. the chain is at least ``n_tau`` (default 50) integrated autocorrelation times
-   long, ``n_steps >= n_tau * max(tau)`` (emcee's recommendation; ``tau`` from
-   :func:`emcee.autocorr.integrated_time` on the whole chain, Sokal's windowing);
+   long, ``n_steps >= n_tau * max(tau)`` (emcee's recommendation);
 2. every ``tau`` changed by less than ``tau_rtol`` (relative) since the previous
    check, i.e. the estimate itself has settled;
 3. the bulk effective sample size (ArviZ, rank-normalised; Vehtari et al. 2021) of
@@ -36,23 +36,17 @@ multiples of ``check_every``, so a resumed run takes the same decisions as an
 uninterrupted one.
 
 Checkpoints: with ``backend_path`` the chain is kept in memory and mirrored to an
-HDF5 file in emcee's :class:`~emcee.backends.HDFBackend` layout (group ``mcmc``:
-chain, log-probabilities, acceptance counts, and the RNG state after the last
-saved step as attributes; readable with ``emcee.backends.HDFBackend(path,
-read_only=True)``). New steps are written after every ``check_every`` steps, at
-least every ``checkpoint_seconds`` of sampling, and when the run ends or is
-interrupted by an exception (Ctrl-C included). emcee's own HDFBackend reopens
-the file on every step, which costs milliseconds per step; batching avoids that.
-A hard kill (SIGKILL, power loss) loses at most the unsaved steps, which
-``resume=True`` recomputes identically: it continues from the last saved step
-with the saved RNG state, so the resumed run ends with the same samples as an
-uninterrupted one. A process killed *while* h5py writes (a short window per
-flush) can leave the file unreadable; that is an HDF5 limitation.
+HDF5 file in emcee's :class:`~emcee.backends.HDFBackend` layout (see
+:mod:`bayesbeam.checkpoint`). New steps are written after every ``check_every``
+steps, at least every ``checkpoint_seconds`` of sampling, and when the run ends or
+is interrupted by an exception (Ctrl-C included). A hard kill (SIGKILL, power loss)
+loses at most the unsaved steps, which ``resume=True`` recomputes identically: it
+continues from the last saved step with the saved RNG state, so the resumed run
+ends with the same samples as an uninterrupted one.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -63,9 +57,10 @@ from pathlib import Path
 from typing import Any
 
 import emcee
-import h5py
 import numpy as np
 
+from bayesbeam.checkpoint import CheckpointBackend, SamplingError, open_checkpoint
+from bayesbeam.convergence import Check, autocorr_time, check_convergence, failed_criteria
 from bayesbeam.priors import PriorSet
 
 __all__ = [
@@ -77,15 +72,9 @@ __all__ = [
     "run_emcee",
 ]
 
-_META = "bayesbeam"  # HDF5 group holding this module's bookkeeping next to emcee's "mcmc"
-
 
 class NotConvergedWarning(UserWarning):
     """The sampler stopped at its step budget before the convergence criteria held."""
-
-
-class SamplingError(ValueError):
-    """Invalid sampler input or log-probability output; the message says how to fix it."""
 
 
 def _readonly(a: Any, dtype: Any = float) -> np.ndarray:
@@ -249,62 +238,6 @@ def _rng_state(seed: int) -> tuple:
     return np.random.RandomState(np.random.MT19937(seed)).get_state()
 
 
-def _autocorr_time(chain: np.ndarray, n_tau: float) -> tuple[np.ndarray, bool]:
-    """τ per parameter of ``chain`` (n, nwalkers, ndim) and whether it is trustworthy.
-
-    emcee raises :class:`emcee.autocorr.AutocorrError` when the chain is shorter than
-    ``n_tau`` τ; that is the normal state early in a run, so it is caught here and
-    reported as ``long_enough=False`` with the (provisional) estimate.
-    """
-    if chain.shape[0] < 2:
-        return np.full(chain.shape[2], np.inf), False
-    # A parameter whose trace is constant in a walker (a walker that never moved
-    # during the chain) makes emcee's normalised autocorrelation 0/0; that τ is
-    # genuinely unknown, so the NaN is mapped to inf below instead of warned about.
-    with np.errstate(invalid="ignore", divide="ignore"):
-        try:
-            tau = emcee.autocorr.integrated_time(chain, c=5, tol=n_tau, quiet=False)
-            long_enough = True
-        except emcee.autocorr.AutocorrError as exc:
-            tau = np.asarray(exc.tau, dtype=float)
-            long_enough = False
-    tau = np.where(np.isfinite(tau), tau, np.inf)
-    if not np.all(np.isfinite(tau)):
-        long_enough = False
-    return tau, long_enough
-
-
-def _burn_in(tau: np.ndarray, n: int, burn_in_taus: float) -> int:
-    tmax = float(np.max(tau))
-    b = n // 2 if not math.isfinite(tmax) else math.ceil(burn_in_taus * tmax)
-    return int(min(b, n // 2))
-
-
-def _ess_rhat(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bulk ESS and split R-hat of ``kept`` (n, nwalkers, ndim), walkers as chains."""
-    ndim = kept.shape[2]
-    if kept.shape[0] < 4:  # split R-hat needs >= 2 draws per half-chain
-        return np.zeros(ndim), np.full(ndim, np.inf)
-    import arviz  # deferred: importing ArviZ takes ~2 s
-
-    x = np.ascontiguousarray(np.swapaxes(kept, 0, 1))  # (chain=walker, draw, ndim)
-    ess = np.asarray(arviz.ess(x, chain_axis=0, draw_axis=1, method="bulk"), dtype=float)
-    rhat = np.asarray(arviz.rhat(x, chain_axis=0, draw_axis=1, method="rank"), dtype=float)
-    return np.where(np.isfinite(ess), ess, 0.0), np.where(np.isfinite(rhat), rhat, np.inf)
-
-
-@dataclass(frozen=True)
-class _Check:
-    n: int
-    tau: np.ndarray
-    long_enough: bool
-    stable: bool
-    burn_in: int
-    ess: np.ndarray
-    rhat: np.ndarray
-    converged: bool
-
-
 class _Progress:
     """Minimal one-line progress report on stderr (emcee's own needs tqdm)."""
 
@@ -316,7 +249,7 @@ class _Progress:
         self._info = ""
         self._shown = False
 
-    def set_info(self, check: _Check) -> None:
+    def set_info(self, check: Check) -> None:
         tmax = float(np.max(check.tau))
         self._info = f"  tau_max {tmax:.1f}" if math.isfinite(tmax) else ""
         if not np.any(np.isnan(check.ess)):
@@ -337,73 +270,6 @@ class _Progress:
         if self.enabled and self._shown:
             sys.stderr.write("\n")
             sys.stderr.flush()
-
-
-class _CheckpointBackend(emcee.backends.Backend):
-    """In-memory emcee backend mirrored to an HDF5 file in HDFBackend's layout."""
-
-    def __init__(self, path: Path, flush_seconds: float):
-        super().__init__()
-        self.h5 = emcee.backends.HDFBackend(str(path))
-        self.flush_seconds = flush_seconds
-        self._flushed = 0
-        self._last_flush = time.monotonic()
-
-    def reset(self, nwalkers: int, ndim: int) -> None:
-        super().reset(nwalkers, ndim)
-        self.h5.reset(nwalkers, ndim)
-        self._flushed = 0
-
-    def load(self) -> None:
-        """Read the saved steps and RNG state from the file into memory."""
-        nwalkers, ndim = (int(v) for v in self.h5.shape)
-        super().reset(nwalkers, ndim)
-        it = int(self.h5.iteration)
-        if it > 0:
-            self.chain = np.array(self.h5.get_chain(), dtype=self.dtype)
-            self.log_prob = np.array(self.h5.get_log_prob(), dtype=self.dtype)
-            self.accepted = np.array(self.h5.accepted, dtype=self.dtype)
-            self.random_state = self.h5.random_state
-            self.iteration = it
-        self._flushed = it
-
-    def save_step(self, state: emcee.State, accepted: np.ndarray) -> None:
-        super().save_step(state, accepted)
-        if time.monotonic() - self._last_flush >= self.flush_seconds:
-            self.flush()
-
-    def flush(self) -> None:
-        """Append the steps not yet in the file; the iteration counter goes last."""
-        self._last_flush = time.monotonic()
-        n0, n1 = self._flushed, self.iteration
-        if n1 <= n0:
-            return
-        with self.h5.open("a") as f:
-            g = f[self.h5.name]
-            for key in ("chain", "log_prob"):
-                if g[key].shape[0] < n1:
-                    g[key].resize(n1, axis=0)
-            g["chain"][n0:n1] = self.chain[n0:n1]
-            g["log_prob"][n0:n1] = self.log_prob[n0:n1]
-            g["accepted"][:] = self.accepted
-            for i, v in enumerate(self.random_state):
-                g.attrs[f"random_state_{i}"] = v
-            g.attrs["iteration"] = n1
-        self._flushed = n1
-
-
-def _write_meta(path: Path, meta: dict[str, Any]) -> None:
-    with h5py.File(path, "a") as f:
-        g = f.require_group(_META)
-        for k, v in meta.items():
-            g.attrs[k] = v
-
-
-def _read_meta(path: Path) -> dict[str, Any]:
-    with h5py.File(path, "r") as f:
-        if _META not in f:
-            return {}
-        return {k: v for k, v in f[_META].attrs.items()}
 
 
 # --------------------------------------------------------------------------------------
@@ -609,37 +475,20 @@ def run_emcee(
     if progress is None:
         progress = bool(getattr(sys.stderr, "isatty", lambda: False)())
 
-    # ---- backend ---------------------------------------------------------------------
     path = None if backend_path is None else Path(backend_path)
     prior_calls, prior_seconds = 0, 0.0
     if path is None:
         backend: emcee.backends.Backend = emcee.backends.Backend()
     else:
-        backend = _CheckpointBackend(path, checkpoint_seconds)
-        if resume and backend.h5.initialized:
-            if tuple(backend.h5.shape) != (nwalkers, ndim):
-                raise SamplingError(
-                    f"checkpoint {path} has (nwalkers, ndim) = {tuple(backend.h5.shape)}, but u0 "
-                    f"has {(nwalkers, ndim)}; use the same walkers or resume=False"
-                )
-            meta = _read_meta(path)
-            if "seed" in meta and int(meta["seed"]) != seed:
-                raise SamplingError(
-                    f"checkpoint {path} was started with seed={int(meta['seed'])}; pass "
-                    "that seed to resume it, or resume=False to start over"
-                )
-            if "names" in meta and tuple(json.loads(meta["names"])) != names:
-                raise SamplingError(
-                    f"checkpoint {path} has parameters {json.loads(meta['names'])}, "
-                    f"not {list(names)}; resume=False starts over"
-                )
-            prior_calls = int(meta.get("n_calls", 0))
-            prior_seconds = float(meta.get("seconds", 0.0))
-            backend.load()
-        else:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            backend.reset(nwalkers, ndim)
-        _write_meta(path, {"seed": seed, "names": json.dumps(list(names))})
+        backend, prior_calls, prior_seconds = open_checkpoint(
+            path,
+            nwalkers=nwalkers,
+            ndim=ndim,
+            seed=seed,
+            names=names,
+            resume=resume,
+            flush_seconds=checkpoint_seconds,
+        )
 
     fn = _CountingLogProb(log_prob, ndim, prior_calls)
     sampler = emcee.EnsembleSampler(
@@ -663,38 +512,31 @@ def run_emcee(
 
     bar = _Progress(bool(progress), max_steps)
 
-    def evaluate(n: int, prev_tau: np.ndarray | None) -> _Check:
-        chain = backend.get_chain()[:n]
-        tau, long_enough = _autocorr_time(chain, n_tau)
-        stable = (
-            prev_tau is not None
-            and bool(np.all(np.isfinite(tau)))
-            and bool(np.all(np.abs(tau - prev_tau) < tau_rtol * tau))
+    def evaluate(n: int, prev_tau: np.ndarray | None) -> Check:
+        return check_convergence(
+            backend.get_chain()[:n],
+            prev_tau,
+            n_tau=n_tau,
+            tau_rtol=tau_rtol,
+            burn_in_taus=burn_in_taus,
+            min_steps=min_steps,
+            max_steps=max_steps,
+            target_ess=target_ess,
         )
-        b = _burn_in(tau, n, burn_in_taus)
-        ok = n >= min_steps and long_enough and stable
-        if ok or n >= max_steps:
-            ess, rhat = _ess_rhat(chain[b:])
-            ok = ok and bool(np.all(ess >= target_ess))
-        else:
-            # ESS/R-hat cost more than tau and cannot change the decision yet.
-            ess, rhat = np.full(ndim, np.nan), np.full(ndim, np.nan)
-        return _Check(n, tau, long_enough, stable, b, ess, rhat, ok)
 
     def save_meta() -> None:
-        if isinstance(backend, _CheckpointBackend):
+        if isinstance(backend, CheckpointBackend):
             backend.flush()
-            seconds = prior_seconds + time.perf_counter() - t_start
-            _write_meta(path, {"n_calls": fn.n_calls, "seconds": seconds})
+            backend.write_progress(fn.n_calls, prior_seconds + time.perf_counter() - t_start)
 
-    check: _Check | None = None
+    check: Check | None = None
     prev_tau: np.ndarray | None = None
     try:
         if it > 0:
             # Rebuild the decision history: τ at the last regular check before `it`,
             # and a check at `it` itself if the interrupted run was due one there.
             last = ((it - 1) // check_every) * check_every
-            prev_tau = _autocorr_time(backend.get_chain()[:last], n_tau)[0] if last else None
+            prev_tau = autocorr_time(backend.get_chain()[:last], n_tau)[0] if last else None
             if it % check_every == 0 or it >= max_steps:
                 check = evaluate(it, prev_tau)
                 prev_tau = check.tau
@@ -718,17 +560,9 @@ def run_emcee(
     if check is None:  # unreachable: the loop runs at least once when it < max_steps
         raise RuntimeError("internal error: no convergence check was made")
     if not check.converged:
-        reasons = []
-        if not check.long_enough:
-            reasons.append(
-                f"chain length {it} < {n_tau:g} tau_max = {n_tau * np.max(check.tau):.0f}"
-            )
-        if not check.stable:
-            reasons.append(f"tau not stable to {tau_rtol:g} between checks")
-        if np.any(check.ess < target_ess):
-            reasons.append(f"ESS min {np.min(check.ess):.0f} < target {target_ess:g}")
-        if it < min_steps:
-            reasons.append(f"fewer than min_steps={min_steps} steps")
+        reasons = failed_criteria(
+            check, n_tau=n_tau, tau_rtol=tau_rtol, target_ess=target_ess, min_steps=min_steps
+        )
         warnings.warn(
             f"emcee did not converge within max_steps={max_steps}: "
             + "; ".join(reasons)

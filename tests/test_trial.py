@@ -364,3 +364,16 @@ def test_readme_example_is_a_valid_trial(tmp_path, repo_root):
     assert tr.beam.beam_mass == pytest.approx(0.021, rel=1e-12)
     assert tr.beam.root_spring == 150.0 and len(tr.beam.segments) == 1
     assert tr.initial["tip_deflection"] == 0.005
+
+
+def test_io_names_are_reexported_from_trial():
+    # File I/O moved to bayesbeam.trial_io; callers still import it from bayesbeam.trial.
+    from bayesbeam import trial, trial_io
+
+    for name in ("read_trial", "write_trial", "FORMAT_VERSION", "_toml_dumps"):
+        assert getattr(trial, name) is getattr(trial_io, name)
+        assert name in dir(trial)
+    for name in trial_io.__all__:
+        assert name == "FORMAT_VERSION" or name in trial.__all__
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        trial.nope  # noqa: B018
