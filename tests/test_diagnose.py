@@ -48,7 +48,7 @@ from bayesbeam.beam import Beam
 from bayesbeam.cli_diagnose import register
 from bayesbeam.diagnose import CATALOGUE, DiagnoseError, diagnose
 from bayesbeam.problem import BETA1
-from bayesbeam.simulate import simulate_signal
+from bayesbeam.simulate import simulate_signal, stationary_ar1
 from bayesbeam.trial import Trial, write_trial
 
 L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9
@@ -123,11 +123,7 @@ def make_trial(model, params, quantity, *, seed=0, duration=1.0, fs=512.0, rho=N
     rng = np.random.default_rng(seed)
     z = rng.standard_normal(t.size)
     if rho is not None:  # stationary AR(1) with unit marginal variance
-        e = np.empty(t.size)
-        e[0] = z[0]
-        for i in range(1, t.size):
-            e[i] = rho * e[i - 1] + np.sqrt(1 - rho**2) * z[i]
-        z = e
+        z = stationary_ar1(z, rho)
     y = y + 0.01 * rms * z + offset * np.sqrt(2) * rms
     trial = Trial(times=t, values=y, quantity=quantity, beam=beam, name=f"{model}-{quantity}")
     return trial, initial
