@@ -25,13 +25,16 @@ Findings (full setting, seed 0, one run on 2 shared cores, 4-11 min per record)
   fitted to f1, the uniform model puts E at 56-61 GPa (nominal 70) and mode 2 too low
   (e.g. 39.06 Hz measured vs 37.89 Hz at 50 cm); its residuals are strongly
   autocorrelated (lag-1 0.6-0.9, Ljung-Box p ~ 0) and 5-18 % of the data's RMS.
-* Named causes: 30 cm: ``ar1_noise`` only (Δ log Z = 205; only modes 1-2 below 0.8
-  Nyquist, f2/f1 not measurable in the 2 s window). 40 cm: ``ar1_noise`` (569), then
+* Named causes: 30 cm: ``ar1_noise`` (Δ log Z = 205; only modes 1-2 below 0.8
+  Nyquist, f2/f1 not measurable in the 2 s window), then ``amplitude_damping`` (drag,
+  33.1 ± 0.5; weak: Δ ELPD 16 ± 21, decay-rate signature 1.6 se, a second sampling of
+  the same model 6 nats lower; before the drag prior was set at the mode-1 tip
+  amplitude it was screened but not confirmed). 40 cm: ``ar1_noise`` (569), then
   ``stiffness_gradient`` (649) with ``tip_mass`` and ``root_spring`` equivalent (within
   2.2 nats). 50 cm: ``stiffness_gradient`` (2428; tip mass 54 and root spring 51 nats
   lower), then ``ar1_noise`` (193). 60 cm: ``stiffness_gradient`` (2693), ``ar1_noise``
   (493), ``sensor_offset`` (54). Steel (hammer tap): ``stiffness_gradient`` (127,
-  f2/f1 -0.2 %), then nothing. ``amplitude_damping`` was never significant.
+  f2/f1 -0.2 %), then nothing. ``amplitude_damping`` is named nowhere else.
 * Gains: the structural extension cuts the RMS residual 11-15 fold at 50 and 60 cm
   (0.94 → 0.085 and 1.18 → 0.081 m/s²; 90 % coverage 0.87 → 0.95 and 0.92 → 0.96),
   1.5 fold at 40 cm (0.72 → 0.49, after AR(1)). E moves toward the nominal 70 GPa
