@@ -1,5 +1,5 @@
 """Allow ``python -m bayesbeam``."""
 
-from bayesbeam.cli import main
+from bayesbeam.cli.main import main
 
 raise SystemExit(main())

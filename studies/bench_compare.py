@@ -7,14 +7,14 @@ the wall-clock and CPU time per model and in total, the evidence errors achieved
 the comparison table.
 
 The trial is synthetic, from the source's single-ply beam with a physical modulus
-(bayesbeam.bench.bench_beam, f1 ≈ 11 Hz): viscous + Kelvin–Voigt damping, each giving
+(bayesbeam.jobs.bench.bench_beam, f1 ≈ 11 Hz): viscous + Kelvin–Voigt damping, each giving
 a first-mode damping ratio of 0.5 %, released from a 5 mm tip deflection, white
 noise of 10 µm.
 
 With ``--jobs 2`` the three fits run in two processes through
-:mod:`bayesbeam.executor` (bitwise the same results, see its docstring) and the
+:mod:`bayesbeam.jobs.executor` (bitwise the same results, see its docstring) and the
 ranking is rebuilt from their result folders with
-:func:`bayesbeam.compare.compare_scores`.
+:func:`bayesbeam.comparison.compare.compare_scores`.
 
 Run: ``.venv/bin/python studies/bench_compare.py [--jobs N] [--target-ess X] [--max-steps N]``.
 """
@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bayesbeam.bench import bench_beam
-from bayesbeam.compare import compare, compare_scores
-from bayesbeam.problem import BETA1
-from bayesbeam.simulate import simulate_trial
-from bayesbeam.trial import write_trial
+from bayesbeam.comparison.compare import compare, compare_scores
+from bayesbeam.inference.problem import BETA1
+from bayesbeam.jobs.bench import bench_beam
+from bayesbeam.trials.io import write_trial
+from bayesbeam.trials.synthetic import simulate_trial
 
 MODELS = ("viscous", "viscous+kv", "viscous+sh")
 
@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> dict:
         cmp = compare(trial, MODELS, seed=args.seed, n_elements=args.elements,
                       target_ess=args.target_ess, max_steps=args.max_steps)
     else:
-        from bayesbeam.executor import fit_tasks, load_score, run_fits
+        from bayesbeam.jobs.executor import fit_tasks, load_score, run_fits
 
         with tempfile.TemporaryDirectory(prefix="bench-compare-") as tmp:
             path = write_trial(trial, Path(tmp) / "trial.toml")

@@ -1,4 +1,4 @@
-"""Benchmark: time for ``bayesbeam.fit.fit`` to converge with ESS >= 1000 per parameter.
+"""Benchmark: time for ``bayesbeam.inference.fit.fit`` to converge with ESS >= 1000 per parameter.
 
 Trial (issue 3, physics.md §4): the source study's single-ply beam
 (``Beam.rectangular(0.3048, 0.127, 0.72e-3, 0.021)``, E = 6.2e10 Pa, first frequency
@@ -28,11 +28,11 @@ import warnings
 
 import numpy as np
 
-from bayesbeam.beam import Beam
-from bayesbeam.fit import fit
-from bayesbeam.problem import BETA1
-from bayesbeam.sampling import NotConvergedWarning
-from bayesbeam.simulate import simulate_trial
+from bayesbeam.inference.fit import fit
+from bayesbeam.inference.problem import BETA1
+from bayesbeam.physics.beam import Beam
+from bayesbeam.stats.sampling import NotConvergedWarning
+from bayesbeam.trials.synthetic import simulate_trial
 
 try:  # optional: limits BLAS threads at run time
     from threadpoolctl import threadpool_limits

@@ -1,10 +1,10 @@
 """The diagnosis catalogue as a benchmark: which hidden effects are found, down to what size.
 
-For each cause of :data:`bayesbeam.diagnose.CATALOGUE` a synthetic trial of the 0.4 m
+For each cause of :data:`bayesbeam.diagnosis.diagnose.CATALOGUE` a synthetic trial of the 0.4 m
 aluminium strip (25 x 2 mm, 8 elements, viscous ζ1 = 0.3 % + Kelvin–Voigt ζ1 = 0.08 %,
 noise 1 % of the RMS) hides the effect at a reference size (the sizes of
 tests/test_diagnose.py) scaled by each factor in ``SIZES``, and
-:func:`bayesbeam.diagnose.diagnose` runs one round from the baseline (``viscous`` for
+:func:`bayesbeam.diagnosis.diagnose.diagnose` runs one round from the baseline (``viscous`` for
 kv/sh, else ``viscous+kv``). Recorded per run: the named cause (found = exactly the
 hidden one), the equivalents, Δ log Z ± error of the named cause, and the wall time.
 
@@ -52,12 +52,12 @@ from typing import Any
 import numpy as np
 import scipy.optimize as sopt
 
-from bayesbeam.beam import Beam
-from bayesbeam.diagnose import CATALOGUE, diagnose
-from bayesbeam.nonlinear import NonlinearForward, amplitude_damping_scales
-from bayesbeam.problem import BETA1
-from bayesbeam.simulate import simulate_signal, stationary_ar1
-from bayesbeam.trial import Trial
+from bayesbeam.diagnosis.diagnose import CATALOGUE, diagnose
+from bayesbeam.inference.problem import BETA1
+from bayesbeam.physics.beam import Beam
+from bayesbeam.physics.nonlinear import NonlinearForward, amplitude_damping_scales
+from bayesbeam.trials.synthetic import simulate_signal, stationary_ar1
+from bayesbeam.trials.trial import Trial
 
 L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9
 BEAM = Beam.rectangular(L, WIDTH, THICK, RHO * L * WIDTH * THICK, E=E)

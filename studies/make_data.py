@@ -27,7 +27,7 @@ The trial TOMLs describe each beam as its user knows it (geometry, mass, the cut
 tape mass, the nominal release deflection) and NOT the hidden truths (E, clamp
 compliance, damping laws and values, noise model, exact release deflection); those are
 written to ``data/truth.toml`` for studies and tests. The signals come from the
-package's own forward model (:class:`bayesbeam.forward.Forward`) on a 32-element mesh
+package's own forward model (:class:`bayesbeam.physics.forward.Forward`) on a 32-element mesh
 (finer than the 16-element default of the fits, as real data are "infinitely" fine), so
 the files are exactly reproducible: values are written in mm with 6 decimals (1 nm,
 10⁴ times below the noise), which makes the output independent of last-bit floating
@@ -47,9 +47,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bayesbeam.beam import Beam, Segment
-from bayesbeam.fem import assemble
-from bayesbeam.forward import Forward, modal_properties
+from bayesbeam.physics.beam import Beam, Segment
+from bayesbeam.physics.fem import assemble
+from bayesbeam.physics.forward import Forward, modal_properties
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
 

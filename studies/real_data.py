@@ -8,12 +8,14 @@ struck by a hammer; IEPE acceleration near the tip, 1651.6 Hz).
 
 For each record, with the public API only:
 
-1. load it (:func:`bayesbeam.realdata.load_enes` / :func:`~bayesbeam.realdata.load_hrshm`;
+1. load it (:func:`bayesbeam.trials.realdata.load_enes` /
+   :func:`~bayesbeam.trials.realdata.load_hrshm`;
    the window starts 0.1 s after the release/impact peak), cut it to a few seconds and
-   resample it to a uniform 512 Hz (anti-alias filter, :meth:`bayesbeam.trial.Trial.resample`);
+   resample it to a uniform 512 Hz (anti-alias filter,
+   :meth:`bayesbeam.trials.trial.Trial.resample`);
 2. take the uniform-beam model ``viscous+kv`` with free amplitudes of the modes below
    0.8 x Nyquist (``initial='modes:K'``: the window starts in free vibration);
-3. :func:`bayesbeam.diagnose.diagnose` it: the baseline's residual signatures (what it
+3. :func:`bayesbeam.diagnosis.diagnose.diagnose` it: the baseline's residual signatures (what it
    gets wrong), the causes named round by round with their gains (Δ log Z ± error,
    Δ ELPD, RMS residual and predictive coverage before/after, parameter moves) and the
    final model.
@@ -68,9 +70,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bayesbeam.diagnose import describe_signatures, diagnose
-from bayesbeam.problem import first_frequency
-from bayesbeam.realdata import load_enes, load_hrshm
+from bayesbeam.diagnosis.diagnose import describe_signatures, diagnose
+from bayesbeam.inference.problem import first_frequency
+from bayesbeam.trials.realdata import load_enes, load_hrshm
 
 #: The records: (label, loader, loader arguments).
 RECORDS = (
@@ -157,7 +159,7 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
     Returns
     -------
     dict
-        ``results`` (record → :meth:`bayesbeam.diagnose.Diagnosis.to_json_dict`),
+        ``results`` (record → :meth:`bayesbeam.diagnosis.diagnose.Diagnosis.to_json_dict`),
         ``markdown`` and ``paths``.
     """
     cfg = SMALL if small else FULL

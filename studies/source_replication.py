@@ -9,7 +9,7 @@ wrong with that). This study repeats the analysis with the package's public API:
 1. per beam and trial, each model's posterior mean ± sd of every parameter (the
    source's tables, with uncertainty);
 2. per trial, the log evidence ± its Monte-Carlo error, the Laplace approximation,
-   ELPD-LOO, WAIC, AIC and BIC, and the verdict (:mod:`bayesbeam.compare`);
+   ELPD-LOO, WAIC, AIC and BIC, and the verdict (:mod:`bayesbeam.comparison.compare`);
 3. per beam, the evidences of the five trials added (independent records) and the
    pooled posterior summaries;
 4. how these conclusions compare with the source's, and with the generating values in
@@ -28,10 +28,10 @@ import math
 import tomllib
 from pathlib import Path
 
-from bayesbeam.demo import MODELS, find_data, run_replication
-from bayesbeam.report import write_report
+from bayesbeam.jobs.demo import MODELS, find_data, run_replication
+from bayesbeam.report.html import write_report
 
-#: Full study: the package defaults (bayesbeam.executor.DEFAULT_SETTINGS), plus plots.
+#: Full study: the package defaults (bayesbeam.jobs.executor.DEFAULT_SETTINGS), plus plots.
 FULL = {"plots": True}
 #: Small: seconds per fit (for tests); not converged posteriors.
 SMALL = {"n_elements": 6, "nwalkers": 16, "target_ess": 10.0, "max_steps": 60, "min_steps": 20,
@@ -152,7 +152,7 @@ def main(small: bool = False, outdir: str | Path | None = None, jobs: int = 1,
     Returns
     -------
     dict
-        ``replication`` (the :class:`bayesbeam.demo.Replication`), ``markdown`` (the
+        ``replication`` (the :class:`bayesbeam.jobs.demo.Replication`), ``markdown`` (the
         summary text) and ``path`` of the Markdown file.
     """
     outdir = Path(outdir or ("source-replication-small" if small else "source-replication"))

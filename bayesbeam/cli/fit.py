@@ -1,0 +1,305 @@
+"""``bayesbeam fit``: Bayesian calibration of one damping model on one trial.
+
+::
+
+    bayesbeam fit TRIAL.toml --model M -o OUTDIR [--seed S] [--json] [--resume]
+        [--priors PRIORS.toml] [--elements N] [--target-ess X] [--max-steps N]
+        [--initial release|impulse|modes:K] [--decimate Q | --resample DT]
+        [--window T0 T1]
+
+Steps: read the trial (:func:`bayesbeam.trials.io.read_trial`); optionally cut a time
+window and then decimate (anti-alias FIR) or resample (for non-uniform stamps);
+:func:`bayesbeam.inference.fit.fit` with the HDF5 checkpoint ``OUTDIR/chain.h5`` (Ctrl-C keeps
+the finished steps; ``--resume`` continues them); then write into ``OUTDIR``:
+
+==========================  ===========================================================
+``posterior.nc``            ArviZ tree (NetCDF): posterior thinned to about 1000
+                            draws, pointwise log-likelihood of those draws,
+                            posterior predictive, observed data, prior draws
+``summary.json``            summary and diagnostics of the full (unthinned) chain
+``corner.png``              corner plot of the physical posterior
+``trace.png``               walker traces
+``fit.png``                 data, posterior-predictive band, residuals
+``residual_spectrum.png``   residual spectrum with the model's modal frequencies
+``run.json``                the options of the run, checked on ``--resume``
+``chain.h5``                emcee checkpoint
+==========================  ===========================================================
+
+Output: the summary table (or, with ``--json``, the record of
+:meth:`bayesbeam.inference.results.FitResult.to_json_dict`: ``model``, ``posterior``
+({name: {mean, sd, q05, q50, q95}}), ``ess_min``, ``tau_max``, ``rhat_max``,
+``converged``, ``seconds`` (sampling wall time), plus ``total_seconds`` (the whole
+command), diagnostics, MAP, priors, settings and provenance). A run that stops at
+``--max-steps`` before converging prints ``WARNING: ... NOT CONVERGED: <reason>`` on
+stderr and still exits 0 with all files written.
+
+Preprocessing order: the window is applied first, so no data outside it reaches the
+fit through the decimation filter (:meth:`bayesbeam.trials.trial.Trial.decimate` drops the
+filter's edge samples inside the window instead).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+from bayesbeam.cli import options as opts
+
+__all__ = ["FitCLIError", "register", "run"]
+
+#: Draws kept for the pointwise log-likelihood in posterior.nc (the brief: ~1000).
+LOGLIK_DRAWS = 1000
+#: Upper bound on stored (draws x samples) values per observation group (~200 MB).
+MAX_VALUES = 25_000_000
+#: Draws of the posterior-predictive group and of the fit plot.
+PPC_DRAWS = 200
+#: Prior draws stored in posterior.nc.
+PRIOR_DRAWS = 1000
+
+
+class FitCLIError(ValueError):
+    """Invalid options of ``bayesbeam fit``; the message says how to fix them."""
+
+
+def register(subparsers: Any) -> None:
+    """Add ``bayesbeam fit`` and its options (model, sampler budget, preprocessing).
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``bayesbeam`` sub-commands (``ArgumentParser.add_subparsers``); ``fit`` is
+        added to them with :func:`run` as its handler.
+    """
+    sp = subparsers.add_parser(
+        "fit",
+        help="sample the posterior of one damping model on one trial (emcee)",
+        description=(
+            "Bayesian calibration of one model on one trial: data-driven MAP, then emcee "
+            "until the autocorrelation-based convergence criteria hold or --max-steps. "
+            "Writes posterior.nc, summary.json, corner.png, trace.png, fit.png and "
+            "residual_spectrum.png to OUTDIR. SI units throughout."
+        ),
+    )
+    opts.add_trial_argument(sp, help="trial TOML file (see data/README.md)")
+    sp.add_argument("--model", required=True,
+                    help="damping laws and extensions joined by '+', e.g. viscous+kv")
+    opts.add_outdir_seed_options(sp)
+    sp.add_argument("--resume", action="store_true",
+                    help="continue the checkpoint OUTDIR/chain.h5 (same options required)")
+    sp.add_argument("--priors", type=Path, default=None,
+                    help="TOML file with [priors.NAME] dist=... tables overriding the defaults")
+    opts.add_elements_option(sp)
+    sp.add_argument("--target-ess", type=float, default=1000.0,
+                    help="bulk ESS required for every parameter (default 1000)")
+    sp.add_argument("--max-steps", type=int, default=20_000,
+                    help="emcee step budget (default 20000)")
+    opts.add_preprocessing_options(sp)
+    opts.add_json_option(sp, help="print the summary as JSON")
+    sp.set_defaults(func=run)
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    opts.check_options(args, FitCLIError, "elements", "seed")
+    if not args.target_ess > 0:
+        raise FitCLIError(f"--target-ess must be positive, got {args.target_ess}")
+    if args.max_steps < 1:
+        raise FitCLIError(f"--max-steps must be a positive integer, got {args.max_steps}")
+    opts.check_options(args, FitCLIError, *opts.PREPROCESSING)
+
+
+def _run_record(args: argparse.Namespace, trial: Any, priors: Any) -> dict[str, Any]:
+    """Collect the options that must not change between a run and its ``--resume``."""
+    from bayesbeam.physics.models import parse_model
+
+    return {
+        "trial_sha256": trial.sha256,
+        "processing": list(trial.source.get("processing", [])),
+        "n_samples": int(trial.times.size),
+        "model": parse_model(args.model).name,
+        "seed": int(args.seed),
+        "n_elements": int(args.elements),
+        "initial": args.initial,
+        "priors": None if priors is None else priors.to_dict(),
+    }
+
+
+def _check_resume(outdir: Path, record: dict[str, Any]) -> None:
+    path = outdir / "run.json"
+    if not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise FitCLIError(f"{path} is not valid JSON ({exc}); delete it to resume anyway") from None
+    old = old.get("record", old)
+    diff = sorted(k for k in record if json.dumps(old.get(k)) != json.dumps(record[k]))
+    if diff:
+        raise FitCLIError(
+            f"--resume: options {diff} differ from the run in {outdir} "
+            f"({', '.join(f'{k}: {old.get(k)!r} -> {record[k]!r}' for k in diff[:3])}); "
+            "repeat the original options, or drop --resume to start over"
+        )
+
+
+def _truths(trial: Any, problem: Any) -> list[float | None] | None:
+    """Return the true values of a synthetic trial (trials.synthetic), for the corner plot."""
+    syn = trial.meta.get("synthetic") or trial.source
+    if not isinstance(syn, dict):  # e.g. a user's `synthetic = true` in [meta]
+        return None
+    params = syn.get("params")
+    if syn.get("generator") != "bayesbeam.trials.synthetic" or not isinstance(params, dict):
+        return None
+    known = {k: float(v) for k, v in params.items()}
+    if "tip_deflection" in trial.initial:
+        known.setdefault("w0", float(trial.initial["tip_deflection"]))
+    if "noise_sd" in syn and float(syn["noise_sd"]) > 0:
+        known.setdefault("sigma", float(syn["noise_sd"]))
+    if "E" not in known and trial.beam.E is not None:
+        known["E"] = float(trial.beam.E)
+    if "eta" in problem.names and "a" in known and "b" in known:
+        known["eta"] = known["a"] * float(problem.eta_per_a([known["b"]])[0])
+    out = [known.get(n) for n in problem.names]
+    return out if any(v is not None for v in out) else None
+
+
+def _mode_freqs(problem: Any, result: Any) -> Any:
+    """Natural frequencies (Hz) of the model at the posterior median, or None."""
+    import numpy as np
+
+    modes = getattr(problem.forward, "modes", None)
+    if modes is None:
+        return None
+    theta = np.median(result.theta_samples().reshape(-1, result.chain.ndim), axis=0)
+    try:
+        f, _ = modes(problem.forward_params(theta[None])[0])
+    except ValueError:  # e.g. an overdamped median set: plot without marks
+        return None
+    return f
+
+
+def _observation_groups(problem: Any, result: Any, rng: Any) -> dict[str, Any]:
+    """Thinned result with pointwise log-likelihood and posterior predictive arrays."""
+    import numpy as np
+
+    from bayesbeam.inference.fit import thin_result
+    from bayesbeam.report.plots import predictive_draws
+
+    T = problem.data.size
+    ndim = result.chain.ndim
+    n_ll = max(result.chain.nwalkers, min(LOGLIK_DRAWS, MAX_VALUES // T))
+    thin = thin_result(result, n_ll)
+    c = thin.chain
+    U = c.samples.reshape(-1, ndim)
+    ll = np.empty((U.shape[0], T))
+    batch = max(1, 4_000_000 // T)
+    for i in range(0, U.shape[0], batch):
+        ll[i : i + batch] = problem.log_likelihood_pointwise(U[i : i + batch])
+    ll = ll.reshape(c.nsteps, c.nwalkers, T).swapaxes(0, 1)
+    # Posterior predictive for ArviZ: (walker, draw, T), a few steps of every walker.
+    steps = max(1, min(c.nsteps, PPC_DRAWS // c.nwalkers))
+    pick = np.linspace(0, c.nsteps - 1, steps).round().astype(int)
+    Up = c.samples[pick].reshape(-1, ndim)
+    _, y_rep = predictive_draws(problem, Up, rng)
+    pp = y_rep.reshape(steps, c.nwalkers, T).swapaxes(0, 1)
+    return {"thin": thin, "log_likelihood": ll, "posterior_predictive": pp}
+
+
+def run(args: argparse.Namespace) -> int:
+    """Execute ``bayesbeam fit`` (see the module docstring).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options of :func:`register`'s parser.
+
+    Returns
+    -------
+    int
+        0 on success (also when not converged: a warning line says so).
+    """
+    t_start = time.perf_counter()
+    _check_args(args)
+    import numpy as np
+
+    from bayesbeam.inference.fit import fit
+    from bayesbeam.inference.problem import Problem, default_priors
+    from bayesbeam.physics.models import parse_model
+    from bayesbeam.report.plots import plot_fit, plot_residual_spectrum, posterior_predictive
+    from bayesbeam.stats.priors import PriorSet
+    from bayesbeam.stats.sampling import NotConvergedWarning
+
+    model = parse_model(args.model)
+    trial = opts.prepare_trial(args)
+    priors = None
+    if args.priors is not None:
+        base = default_priors(trial, model, n_elements=args.elements, initial=args.initial)
+        priors = PriorSet.from_toml(args.priors, base=base)
+    outdir = Path(args.outdir)
+    record = _run_record(args, trial, priors)
+    if args.resume:
+        _check_resume(outdir, record)
+    outdir.mkdir(parents=True, exist_ok=True)
+    (outdir / "run.json").write_text(
+        json.dumps({"record": record, "argv": sys.argv[1:]}, indent=2) + "\n",
+        encoding="utf-8",
+    )
+    problem = Problem(trial, model, priors, n_elements=args.elements, initial=args.initial)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", NotConvergedWarning)
+        result = fit(
+            trial,
+            model,
+            priors=priors,
+            initial=args.initial,
+            outdir=outdir,
+            resume=args.resume,
+            problem=problem,
+            **opts.fit_settings(args),
+        )
+    other = [w for w in caught if not issubclass(w.category, NotConvergedWarning)]
+    for w in other:  # re-issue what this block was not meant to swallow
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    reasons = [str(w.message) for w in caught if issubclass(w.category, NotConvergedWarning)]
+
+    rng = np.random.default_rng([args.seed, 1])  # independent of the sampler's stream
+    groups = _observation_groups(problem, result, rng)
+    groups["thin"].save(
+        outdir,
+        log_likelihood=groups["log_likelihood"],
+        posterior_predictive=groups["posterior_predictive"],
+        observed=np.asarray(trial.values),
+        obs_coords=np.asarray(trial.times),
+        prior_samples=PRIOR_DRAWS,
+    )
+    payload = result.to_json_dict()
+    payload["total_seconds"] = time.perf_counter() - t_start
+    payload["posterior_nc_draws"] = int(groups["thin"].chain.nsteps * groups["thin"].chain.nwalkers)
+    # summary.json describes the full chain (posterior.nc holds the thinned draws).
+    (outdir / "summary.json").write_text(
+        json.dumps(payload, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+    )
+    result.plot_corner(outdir / "corner.png", truths=_truths(trial, problem))
+    result.plot_trace(outdir / "trace.png")
+    draws = posterior_predictive(problem, result, PPC_DRAWS, rng)
+    plot_fit(trial, problem, result, outdir / "fit.png", rng=rng, draws=draws)
+    resid = np.asarray(trial.values) - np.median(draws[0], axis=0)
+    plot_residual_spectrum(trial, resid, outdir / "residual_spectrum.png",
+                           mode_freqs_hz=_mode_freqs(problem, result))
+    payload["total_seconds"] = time.perf_counter() - t_start
+    payload["outdir"] = str(outdir)
+
+    if args.json:
+        opts.print_json(payload)
+    else:
+        print(result)
+        print(f"results in {outdir}/ (posterior.nc, summary.json, corner.png, trace.png, "
+              f"fit.png, residual_spectrum.png); {payload['total_seconds']:.1f} s in total")
+    if not result.chain.converged:
+        why = reasons[0] if reasons else "convergence criteria not met"
+        print(f"WARNING: {model.name}: NOT CONVERGED: {why}", file=sys.stderr)
+    return 0

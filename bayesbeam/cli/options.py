@@ -1,0 +1,237 @@
+"""Command-line options shared by the ``bayesbeam`` sub-commands, and their checks.
+
+Each sub-command module (:mod:`bayesbeam.cli.main`, :mod:`bayesbeam.cli.fit`,
+:mod:`bayesbeam.cli.compare`, :mod:`bayesbeam.cli.diagnose`, :mod:`bayesbeam.cli.demo`,
+:mod:`bayesbeam.cli.report`) builds its parser from these pieces, so an option that
+two commands share has one name, default, help text and error message:
+
+* ``add_*`` functions add options to an ``argparse`` parser;
+* :func:`check_options` validates the parsed values and raises the calling command's
+  error class (a :class:`ValueError`, reported by :func:`bayesbeam.cli.main.main` with exit
+  status 2);
+* :func:`fit_settings` maps the sampler options to the keywords of
+  :func:`bayesbeam.inference.fit.fit`, :func:`bayesbeam.comparison.compare.compare` and
+  :func:`bayesbeam.diagnosis.diagnose.diagnose`;
+* :func:`prepare_trial` reads the trial and applies ``--window`` and
+  ``--decimate``/``--resample``;
+* :func:`print_json` prints a strict-JSON record (``--json``).
+
+Nothing heavy is imported at import time: the trial reader is imported when called.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "PREPROCESSING",
+    "add_elements_option",
+    "add_json_option",
+    "add_outdir_seed_options",
+    "add_preprocessing_options",
+    "add_trial_argument",
+    "check_options",
+    "fit_settings",
+    "initial_condition",
+    "prepare_trial",
+    "print_json",
+]
+
+
+def initial_condition(text: str) -> str:
+    """Parse ``--initial``: ``release``, ``impulse`` or ``modes:K`` (an ``argparse`` type).
+
+    Parameters
+    ----------
+    text : str
+        The option's value.
+
+    Returns
+    -------
+    str
+        ``text`` unchanged (the model checks ``K`` when it builds the problem).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        For any other value.
+    """
+    if text in ("release", "impulse") or text.startswith("modes:"):
+        return text
+    raise argparse.ArgumentTypeError(
+        f"{text!r}: use 'release', 'impulse' or 'modes:K' (K a positive integer)"
+    )
+
+
+def add_trial_argument(parser: argparse.ArgumentParser, help: str = "trial TOML file") -> None:
+    """Add the positional ``trial`` argument (a trial TOML path).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    help : str
+        Help text of the argument.
+    """
+    parser.add_argument("trial", type=Path, help=help)
+
+
+def add_outdir_seed_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``-o/--outdir`` (required output directory) and ``--seed`` (default 0).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    """
+    parser.add_argument("-o", "--outdir", type=Path, required=True, help="output directory")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+
+
+def add_elements_option(parser: argparse.ArgumentParser,
+                        help: str | None = "Hermite elements (default 16)") -> None:
+    """Add ``--elements`` (number of Hermite beam elements, default 16).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    help : str or None
+        Help text of the option.
+    """
+    parser.add_argument("--elements", type=int, default=16, help=help)
+
+
+def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--initial``, ``--decimate`` | ``--resample`` (exclusive) and ``--window``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    """
+    parser.add_argument("--initial", type=initial_condition, default="release",
+                        help="initial condition: release (default), impulse or modes:K")
+    pre = parser.add_mutually_exclusive_group()
+    pre.add_argument("--decimate", type=int, default=None, metavar="Q",
+                     help="decimate by Q with a zero-phase anti-alias FIR (uniform stamps)")
+    pre.add_argument("--resample", type=float, default=None, metavar="DT",
+                     help="resample to step DT s with an anti-alias filter (any stamps)")
+    parser.add_argument("--window", type=float, nargs=2, default=None, metavar=("T0", "T1"),
+                        help="keep samples with T0 <= t <= T1 (s, trial time axis)")
+
+
+def add_json_option(parser: argparse.ArgumentParser,
+                    help: str = "machine-readable output") -> None:
+    """Add the ``--json`` flag (print a JSON record instead of text).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    help : str
+        Help text saying what the command prints as JSON.
+    """
+    parser.add_argument("--json", action="store_true", help=help)
+
+
+#: Range checks of shared options: option dest -> (test of the parsed value, message).
+_CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "elements": (lambda v: v >= 1, "--elements must be a positive integer, got {}"),
+    "seed": (lambda v: v >= 0, "--seed must be a non-negative integer, got {}"),
+    "decimate": (lambda v: v is None or v >= 1, "--decimate must be an integer >= 1, got {}"),
+    "resample": (lambda v: v is None or v > 0, "--resample must be a positive step in s, got {}"),
+    "window": (lambda v: v is None or v[0] < v[1], "--window T0 T1 needs T0 < T1, got {}"),
+}
+
+#: The options of :func:`add_preprocessing_options` that :func:`check_options` checks.
+PREPROCESSING = ("decimate", "resample", "window")
+
+
+def check_options(args: argparse.Namespace, error: type[Exception], *names: str) -> None:
+    """Check shared options in the order given; raise on the first out of range.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options.
+    error : type of Exception
+        The command's error class, raised with a message that names the option.
+    *names : str
+        Option destinations among ``elements``, ``seed``, ``decimate``, ``resample``,
+        ``window`` (:data:`PREPROCESSING` holds the last three).
+
+    Raises
+    ------
+    Exception
+        ``error`` for the first value out of range.
+    """
+    for name in names:
+        test, message = _CHECKS[name]
+        value = getattr(args, name)
+        if not test(value):
+            raise error(message.format(value))
+
+
+def fit_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of the fitting functions from ``--seed``, ``--elements``, ...
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options with ``seed``, ``elements``, ``target_ess`` and ``max_steps``.
+
+    Returns
+    -------
+    dict
+        ``seed``, ``n_elements``, ``target_ess`` and ``max_steps``.
+    """
+    return {
+        "seed": args.seed,
+        "n_elements": args.elements,
+        "target_ess": args.target_ess,
+        "max_steps": args.max_steps,
+    }
+
+
+def prepare_trial(args: argparse.Namespace) -> Any:
+    """Read ``args.trial``, then cut ``--window`` and apply ``--decimate`` or ``--resample``.
+
+    The window comes first, so no data outside it reaches the fit through the
+    decimation filter.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options with ``trial`` and those of :func:`add_preprocessing_options`.
+
+    Returns
+    -------
+    bayesbeam.trials.trial.Trial
+        The trial as the fit sees it.
+    """
+    from bayesbeam.trials.io import read_trial
+
+    trial = read_trial(args.trial)
+    if args.window is not None:
+        trial = trial.window(*args.window)
+    if args.decimate is not None:
+        trial = trial.decimate(args.decimate)
+    elif args.resample is not None:
+        trial = trial.resample(args.resample)
+    return trial
+
+
+def print_json(record: Any) -> None:
+    """Print ``record`` as indented strict JSON (no NaN or infinity) on stdout.
+
+    Parameters
+    ----------
+    record : object
+        A JSON-serialisable record.
+    """
+    print(json.dumps(record, indent=2, allow_nan=False))

@@ -1,0 +1,446 @@
+"""Name the cause of a model discrepancy from a catalogue, extend the model, measure the gain.
+
+:func:`diagnose` starts from a baseline model (e.g. ``viscous+kv``) and, round by
+round, tries every extension of the catalogue (:data:`CATALOGUE`) that the current
+model lacks:
+
+========================  ===========================================================
+cause                     model extension (parameters)
+========================  ===========================================================
+``kv``, ``sh``            an internal damping law (``c_d``; ``eta``, ``b``)
+``tip_mass``              concentrated tip mass (``tip_mass``, kg)
+``root_spring``           rotational clamp compliance (``root_spring``, N m/rad)
+``stiffness_gradient``    EI(x) ∝ 1 + g (x/L - 1/2) (``stiffness_gradient``)
+``amplitude_damping``     quadratic air drag and clamp friction (``drag``, ``friction``)
+``ar1_noise``             AR(1) correlated residuals (``rho``)
+``sensor_offset``         constant offset of the signal (``offset``)
+========================  ===========================================================
+
+Procedure of one round (current model M)
+----------------------------------------
+1. **Screen** (cheap, every candidate X): the MAP of M+X from several starts, each
+   refined by an E scan, L-BFGS-B and a few damped Newton steps with a
+   finite-difference Hessian (these posteriors are narrow curved ridges on which
+   L-BFGS-B alone stops several nats short). Starts: the current MAP with X's
+   parameters at their neutral values (the prior's lower end; ``g = 0``, ``rho = 0``,
+   a stiff root spring), so M+X ⊇ M is at least as good; and physics-based starts
+   from the data's modal estimates (:func:`bayesbeam.trials.modal_id.damped_sinusoids`):
+   a structural parameter solved so that the model's f2/f1 equals the measured one,
+   E so that f1 matches, the damping coefficients from the measured decay rates of
+   modes 1 and 2 (non-negative least squares on σ_n ≈ C_nn/2), and drag or friction
+   at 0.25-2 times the measured ζ1 (:meth:`~bayesbeam.physics.nonlinear.NonlinearForward.
+   equivalent_damping` at the measured first-mode amplitude). The statistic is the
+   gain in maximum log-likelihood ``Δχ²/2 = max log L(M+X) - max log L(M)``; the
+   Laplace Δ log Z (:func:`bayesbeam.stats.evidence.laplace_evidence`) is recorded where
+   both MAPs are interior. Adding a parameter multiplies the evidence by its Occam
+   factor (≤ 1), so Δ log Z ≲ Δχ²/2: a candidate with ``Δχ²/2 <= SCREEN_THRESHOLD``
+   (2 nats, 1 nat below the significance threshold for safety) cannot be
+   significant and is not sampled. The MAPs of the passing candidates also restart
+   the optimisation of M (a better optimum of M found this way replaces its MAP, so
+   that a poor local optimum of M cannot make every extension look good).
+2. **Confirm** (expensive): emcee from the MAP (walkers in a ball shaped by the
+   Laplace covariance, differential-evolution moves), then bridge-sampling evidence
+   with its Monte-Carlo error and PSIS-LOO (:func:`bayesbeam.comparison.compare.evaluate`) for M
+   and for the ``confirm_top`` best-screened candidates (plus any other within
+   ``SCREEN_TIE`` = 3 nats of the best screen value).
+3. **Decide**. ``Δ = log Z(M+X) - log Z(M)`` with ``err = sqrt(err_M² + err_X²)``.
+   X is *significant* when ``Δ - 2 err > SIGNIFICANCE`` (3 nats: a Bayes factor above
+   20, "strong" on Kass & Raftery's 1995 scale). Two candidates count as *separated*
+   only when one's evidence beats the other's by the same strength, more than
+   ``max(2 err, TIE)`` with ``TIE`` = 3 nats. The best significant candidate and all
+   significant ones not separated from it form a set the data cannot tell apart: the
+   one with fewest parameters is named (parsimony; by construction their evidences
+   do not distinguish them; ties broken by evidence) and the others are listed as
+   ``equivalent``. Nothing significant → the round's answer is ``"none"`` and the
+   diagnosis stops. Δ ELPD (PSIS-LOO, paired se; Vehtari et al. 2017) is reported
+   beside it, and a note is made when it points the other way beyond 2 se.
+4. **Tie to a signature**: the residual signature of M that points the same way is
+   reported (:func:`signature_support`): f2/f1 shift for the structural causes,
+   decay rate vs amplitude for ``amplitude_damping``, Ljung–Box whiteness and lag-1
+   autocorrelation for ``ar1_noise``, mean / low-frequency residual for
+   ``sensor_offset``, frequency dependence of the modal damping for ``kv``/``sh``.
+5. **Measure the gain**: Δ log Z ± err, Δ ELPD ± se, RMS residual and 90 %
+   predictive coverage before and after, and how the physical parameters moved
+   (posterior mean ± sd before and after).
+
+Then M ← M+X and the next round starts, up to ``max_rounds`` (default 3).
+
+Cost: each screen is one MAP search (0.2-2 s for a 512-sample record and 8 elements
+on one core; 5-15 s with amplitude damping, whose forward model is ~5x slower); each
+confirmation one emcee run plus bridge sampling (5-20 s at the test budget of 400
+steps x 24 walkers). A round costs about 8 screens and 2-4 confirmations.
+
+Known limits: a tip mass and a root spring have exactly the same natural frequencies
+when μ = m_t/(rhoA L) = 1/κ (physics.md §3 gives the same frequency equation for
+both); only the mode shapes (hence the modal amplitudes of a release or a tap) tell
+them apart, so with free modal amplitudes (``initial='modes:K'``) they differ only
+through the modal damping. With only two modes in the record, a broad-kernel SH and
+viscous + KV damping both fit two decay rates exactly, and a root spring and a
+stiffness gradient both fit f2/f1: the third mode separates them (visible in
+acceleration records and in displacement records of a tap, not of a release). A
+narrow-kernel SH is KV (physics.md §2), so ``sh`` is never separable from ``kv``
+when KV is the cause.
+
+The records returned (:class:`Diagnosis`, :class:`Round`, :class:`CandidateScore`)
+are defined in :mod:`bayesbeam.diagnosis.records` and re-exported here.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+# The records (and the text of the signatures, which their narrative uses) are re-exported.
+from bayesbeam.diagnosis.records import CandidateScore, Diagnosis, Round, describe_signatures
+
+# DiagnoseError is defined with the search machinery (which raises it) and re-exported.
+from bayesbeam.diagnosis.search import DiagnoseError, _Engine, _State
+from bayesbeam.physics.models import LAWS, STRUCTURAL, Model, parse_model
+from bayesbeam.trials.trial import Trial
+
+__all__ = [
+    "CATALOGUE",
+    "SCREEN_THRESHOLD",
+    "SIGNIFICANCE",
+    "TIE",
+    "CandidateScore",
+    "Diagnosis",
+    "DiagnoseError",
+    "Round",
+    "describe_signatures",
+    "diagnose",
+    "signature_support",
+]
+
+#: The catalogue of causes, in the order they are tried (names are model parts).
+CATALOGUE: tuple[str, ...] = (
+    "kv", "sh", "tip_mass", "root_spring", "stiffness_gradient", "amplitude_damping",
+    "ar1_noise", "sensor_offset",
+)
+#: A cause is significant when Δ log Z - 2 err exceeds this (nats; Bayes factor > 20).
+SIGNIFICANCE = 3.0
+#: Screening: candidates whose max-log-likelihood gain does not exceed this are dropped.
+SCREEN_THRESHOLD = 2.0
+#: Candidates within this many nats of the best screen value are confirmed too.
+SCREEN_TIE = 3.0
+#: Candidates are separated only when one's evidence beats the other's by more than
+#: max(2 err, TIE) nats: the same strength (Bayes factor > 20) that significance needs.
+TIE = 3.0
+
+
+# --------------------------------------------------------------------------- signatures
+
+
+def signature_support(cause: str, sig: Any) -> tuple[bool | None, str]:
+    """Find the residual signature that points to ``cause`` and say whether it does.
+
+    Parameters
+    ----------
+    cause : str
+        A catalogue name.
+    sig : Signatures
+        Signatures of the model the cause would extend.
+
+    Returns
+    -------
+    agrees : bool or None
+        True when the signature is significant (beyond 2 se, or the stated level) in
+        the cause's direction; None when it could not be measured.
+    text : str
+    """
+    if cause in STRUCTURAL:
+        s, e = sig.ratio_shift, sig.ratio_shift_err
+        if not math.isfinite(s):
+            return None, "f2/f1 not measurable (mode 2 not seen)"
+        txt = (f"f2/f1 of the data is {100 * s:+.2f} ± {100 * e:.2f} % off the model's; on a "
+               "uniform strip a tip mass of 8 % of the beam mass raises f2/f1 by ~3 %, a root "
+               "spring lowering f1 by 4 % raises it by only ~0.3 %, a stiffness falling 30 % "
+               "toward the tip lowers it by ~3.5 %")
+        big = abs(s) > 2 * e
+        if cause == "stiffness_gradient":
+            return big, txt
+        return bool(big and s > 0), txt
+    if cause == "amplitude_damping":
+        d, e = sig.decay_excess_diff, sig.decay_excess_diff_err
+        if not (math.isfinite(d) and e < 1.0):
+            return None, ("decay rate vs amplitude not measurable on this record (the "
+                          "amplitude falls too little, or mode 1 is too weak)")
+        way = ("faster at large amplitude (drag)" if d > 0
+               else "faster at small amplitude (friction)")
+        return bool(abs(d) > 2 * e), (
+            "mode-1 decay rate changes with amplitude beyond the model: its excess at the "
+            f"initial amplitude is {100 * d:+.0f} ± {100 * e:.0f} % of the small-amplitude "
+            f"rate, {way}")
+    if cause == "ar1_noise":
+        return bool(not sig.white and sig.lag1 > 0.2), (
+            f"residuals autocorrelated: lag-1 {sig.lag1:.2f}, Ljung–Box p = {sig.ljung_box_p:.2g}")
+    if cause == "sensor_offset":
+        ok = abs(sig.residual_mean_z) > 3 or sig.lowfreq_fraction > 0.2
+        return bool(ok), (f"residual mean {sig.residual_mean:.3g} (z = {sig.residual_mean_z:.1f}), "
+                          f"{100 * sig.lowfreq_fraction:.0f} % of residual power below f1/2")
+    if cause in LAWS:
+        ms = [m for m in sig.modes if m.data and m.model]
+        if not ms:
+            return None, "modal damping not measurable"
+        parts, agree = [], False
+        for m in ms:
+            d, mm = m.data, m.model
+            err = math.hypot(d.decay_rate_se, mm.decay_rate_se)
+            parts.append(f"mode {m.mode} decay rate data {d.decay_rate:.3g} vs model "
+                         f"{mm.decay_rate:.3g} 1/s")
+            agree |= abs(d.decay_rate - mm.decay_rate) > 2 * err
+        return agree, ("frequency dependence of damping: " + "; ".join(parts)
+                       + f" (ζ2/ζ1 data {sig.zeta_ratio_data:.3g}, model "
+                       f"{sig.zeta_ratio_model:.3g}; viscous ζ falls with f, KV rises, wide-kernel "
+                       "SH rises about linearly)")
+    raise DiagnoseError(f"unknown cause {cause!r}; the catalogue is {list(CATALOGUE)}")
+
+
+def _moves(before: _State, after: _State) -> dict[str, Any]:
+    """Posterior mean and sd of the physical parameters shared by two fits."""
+    out = {}
+    sb, sa = before.score.result.summary(), after.score.result.summary()
+    for n in before.problem.model.physical_params + ("a",):
+        key = "eta" if n == "a" and "eta" in sb else n
+        if key in sb and key in sa:
+            out[key] = {"before": [sb[key]["mean"], sb[key]["sd"]],
+                        "after": [sa[key]["mean"], sa[key]["sd"]]}
+    for n in after.problem.model.physical_params:
+        if n in sa and n not in out:
+            out[n] = {"before": [math.nan, math.nan], "after": [sa[n]["mean"], sa[n]["sd"]]}
+    return out
+
+
+# --------------------------------------------------------------------------- diagnose
+
+
+def _valid_candidates(model: Model, candidates: Sequence[str]) -> list[str]:
+    return [c for c in candidates if c not in model.parts]
+
+
+def diagnose(
+    trial: Trial,
+    baseline: str | Model = "viscous+kv",
+    *,
+    seed: int = 0,
+    max_rounds: int = 3,
+    candidates: Sequence[str] = CATALOGUE,
+    n_elements: int = 16,
+    initial: str = "release",
+    priors: Mapping[str, Any] | None = None,
+    confirm_top: int = 3,
+    nwalkers: int | None = None,
+    target_ess: float = 300.0,
+    min_steps: int = 200,
+    max_steps: int = 2000,
+    loo_draws: int = 400,
+    signatures: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> Diagnosis:
+    """Show what the baseline gets wrong, name the causes, extend the model, measure the gain.
+
+    See the module docstring for the procedure and its thresholds.
+
+    Parameters
+    ----------
+    trial : Trial
+        The record (SI units).
+    baseline : str or Model
+        Starting model, e.g. ``'viscous+kv'``.
+    seed : int
+        Seed of every random choice (starts, walkers, bridge proposals, noise draws).
+    max_rounds : int
+        At most this many causes are named.
+    candidates : sequence of str
+        Catalogue subset to try (default all of :data:`CATALOGUE`).
+    n_elements : int
+        Hermite elements of the forward model.
+    initial : str
+        Initial-condition kind (``'release'`` for synthetic release tests,
+        ``'modes:K'`` for records whose window starts in free vibration).
+    priors : mapping, optional
+        Prior overrides (name → Prior or dict), applied to every model that has the
+        parameter.
+    confirm_top : int
+        Screened candidates sampled per round (plus ties within 3 nats).
+    nwalkers, target_ess, min_steps, max_steps : optional
+        emcee budget per sampled model (see :func:`bayesbeam.stats.sampling.run_emcee`).
+    loo_draws : int
+        Posterior draws for PSIS-LOO.
+    signatures : bool
+        Compute the residual signatures of the baseline and the final model.
+    progress : callable, optional
+        Called with one line of text per step (e.g. ``print``).
+
+    Returns
+    -------
+    Diagnosis
+
+    Raises
+    ------
+    DiagnoseError
+        For an unknown cause, an invalid round limit or a model that cannot be fitted.
+    """
+    t_start = time.perf_counter()
+    model = parse_model(baseline)
+    unknown = [c for c in candidates if c not in CATALOGUE]
+    if unknown:
+        raise DiagnoseError(f"unknown cause(s) {unknown}; the catalogue is {list(CATALOGUE)}")
+    if isinstance(max_rounds, bool) or not isinstance(max_rounds, int) or max_rounds < 1:
+        raise DiagnoseError(f"max_rounds must be an int >= 1, got {max_rounds!r}")
+    if not isinstance(trial, Trial):
+        raise DiagnoseError("trial must be a bayesbeam Trial (see bayesbeam.trials.io.read_trial)")
+    log = progress or (lambda s: None)
+    notes: list[str] = []
+    eng = _Engine(trial, seed=seed, n_elements=n_elements, initial=initial, priors=priors,
+                  sampler={"nwalkers": nwalkers, "target_ess": target_ess,
+                           "min_steps": min_steps, "max_steps": max_steps,
+                           "loo_draws": loo_draws},
+                  notes=notes, log=log)
+    cur = eng.state(model)
+    eng.optimise(cur, eng.starts(cur, None))
+    log(f"baseline {model.name}: max log L = {cur.ll:.2f}")
+    first = cur
+    rounds: list[Round] = []
+    final_check: Round | None = None
+    for k in range(1, max_rounds + 1):
+        rnd = _round(eng, cur, k, candidates, confirm_top, log)
+        if rnd.cause == "none":
+            final_check = rnd
+            break
+        rounds.append(rnd)
+        cur = eng.states[rnd.model_after]
+    sig_before = sig_after = None
+    if signatures:
+        sig_before = eng.signatures(first)
+        sig_after = eng.signatures(cur)
+    fits = {name: st.score.result for name, st in eng.states.items() if st.score is not None}
+    return Diagnosis(
+        trial=trial.name, baseline=model.name, final_model=cur.problem.model.name,
+        named_causes=tuple(r.cause for r in rounds), rounds=tuple(rounds),
+        final_check=final_check,
+        thresholds={"significance": SIGNIFICANCE, "screen": SCREEN_THRESHOLD,
+                    "screen_tie": SCREEN_TIE, "tie": TIE},
+        signatures_before=sig_before, signatures_after=sig_after, fits=fits,
+        notes=tuple(dict.fromkeys(notes)), seconds=time.perf_counter() - t_start,
+    )
+
+
+def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
+           confirm_top: int, log: Callable[[str], None]) -> Round:
+    from bayesbeam.stats.criteria import CriteriaError, elpd_difference
+
+    t_round = time.perf_counter()
+    model = cur.problem.model
+    scores: dict[str, dict[str, Any]] = {}
+    # 1. Screen.
+    for cause in _valid_candidates(model, candidates):
+        t0 = time.perf_counter()
+        ext = model.extend(cause)
+        try:
+            st = eng.state(ext)
+        except (ImportError, ValueError) as err:
+            # e.g. the nonlinear forward model or a default prior is not available.
+            eng.notes.append(f"candidate {cause} not tried: {err}")
+            scores[cause] = {"model": ext.name, "gain": math.nan, "note": str(err)}
+            continue
+        eng.optimise(st, eng.starts(st, cur.x))
+        scores[cause] = {"model": ext.name, "gain": st.ll - cur.ll, "note": "",
+                         "seconds": time.perf_counter() - t0}
+        log(f"  round {index} screen {cause}: Δχ²/2 = {st.ll - cur.ll:.2f} "
+            f"({time.perf_counter() - t0:.1f} s)")
+    passing = [c for c, s in scores.items() if s["gain"] > SCREEN_THRESHOLD]
+    # A better optimum of the current model found from a candidate's MAP replaces its MAP.
+    if passing:
+        warm = [[eng.states[scores[c]["model"]].x.get(n, cur.x[n]) for n in cur.problem.names]
+                for c in passing]
+        before = cur.ll
+        eng.optimise(cur, np.array(warm))
+        if cur.ll > before + 1e-6:
+            log(f"  current model improved by {cur.ll - before:.2f} from candidate MAPs")
+            cur.score = cur.sig = None
+            for s in scores.values():
+                if math.isfinite(s["gain"]):
+                    s["gain"] -= cur.ll - before
+            passing = [c for c, s in scores.items() if s["gain"] > SCREEN_THRESHOLD]
+    # Laplace Δ for the record.
+    eng.laplace(cur)
+    for s in scores.values():
+        if math.isfinite(s["gain"]):
+            st = eng.states[s["model"]]
+            eng.laplace(st)
+            s["laplace"] = st.laplace - cur.laplace
+    # 2. Confirm.
+    ranked = sorted(passing, key=lambda c: -scores[c]["gain"])
+    if ranked:
+        best_gain = scores[ranked[0]]["gain"]
+        chosen = [c for i, c in enumerate(ranked)
+                  if i < confirm_top or scores[c]["gain"] > best_gain - SCREEN_TIE]
+        sc_cur = eng.confirm(cur)
+        for c in chosen:
+            st = eng.states[scores[c]["model"]]
+            sc = eng.confirm(st)
+            d = sc.log_evidence - sc_cur.log_evidence
+            err = math.hypot(sc.log_evidence_err, sc_cur.log_evidence_err)
+            try:
+                de, dse = elpd_difference(sc.loo, sc_cur.loo)
+            except CriteriaError as e:
+                eng.notes.append(f"Δ ELPD of {c} not computed: {e}")
+                de, dse = math.nan, math.nan
+            scores[c].update(confirmed=True, delta=d, err=err, elpd=de, elpd_se=dse,
+                             significant=bool(d - 2 * err > SIGNIFICANCE))
+            if math.isfinite(de) and d - 2 * err > SIGNIFICANCE and de < -2 * dse:
+                eng.notes.append(
+                    f"round {index}: {c} raises the evidence by {d:.1f} nats but lowers ELPD by "
+                    f"{-de:.1f} ± {dse:.1f}; check the LOO notes (Pareto k) of both models")
+    cand = tuple(
+        CandidateScore(
+            cause=c, model=s["model"], delta_chi2_half=float(s["gain"]),
+            laplace_delta=float(s.get("laplace", math.nan)),
+            confirmed=bool(s.get("confirmed", False)),
+            delta_log_evidence=float(s.get("delta", math.nan)),
+            delta_log_evidence_err=float(s.get("err", math.nan)),
+            delta_elpd=float(s.get("elpd", math.nan)),
+            delta_elpd_se=float(s.get("elpd_se", math.nan)),
+            significant=bool(s.get("significant", False)),
+            n_params=(eng.states[s["model"]].problem.ndim if s["model"] in eng.states else 0),
+            seconds=float(s.get("seconds", 0.0)), note=s["note"],
+        )
+        for c, s in scores.items()
+    )
+    sig = [c for c in cand if c.significant]
+    if not sig:
+        return Round(index=index, model_before=model.name, model_after=model.name,
+                     cause="none", candidates=cand, seconds=time.perf_counter() - t_round)
+    # 3. Decide: best evidence, its equivalents, parsimony among them.
+    best = max(sig, key=lambda c: c.delta_log_evidence)
+    sc_b = eng.states[best.model].score
+
+    def tied(c: CandidateScore) -> bool:
+        sc_c = eng.states[c.model].score
+        band = max(2 * math.hypot(sc_b.log_evidence_err, sc_c.log_evidence_err), TIE)
+        return best.delta_log_evidence - c.delta_log_evidence <= band
+
+    group = [c for c in sig if tied(c)]
+    named = min(group, key=lambda c: (c.n_params, -c.delta_log_evidence))
+    equivalent = tuple(c.cause for c in group if c is not named)
+    after = eng.states[named.model]
+    sig_cur = eng.signatures(cur)
+    agrees, text = signature_support(named.cause, sig_cur)
+    sig_after = eng.signatures(after)
+    log(f"  round {index}: named {named.cause} (Δ log Z = {named.delta_log_evidence:.1f} ± "
+        f"{named.delta_log_evidence_err:.1f}); equivalent {list(equivalent)}")
+    return Round(
+        index=index, model_before=model.name, model_after=named.model, cause=named.cause,
+        equivalent=equivalent, delta_log_evidence=named.delta_log_evidence,
+        delta_log_evidence_err=named.delta_log_evidence_err, delta_elpd=named.delta_elpd,
+        delta_elpd_se=named.delta_elpd_se, rms_before=sig_cur.rms_residual,
+        rms_after=sig_after.rms_residual, coverage_before=sig_cur.coverage90,
+        coverage_after=sig_after.coverage90, parameter_moves=_moves(cur, after),
+        signature=text, signature_agrees=agrees, candidates=cand,
+        seconds=time.perf_counter() - t_round,
+    )

@@ -1,0 +1,336 @@
+"""Records of a diagnosis: the outcome, its rounds and candidate scores, and their text.
+
+:func:`bayesbeam.diagnosis.diagnose.diagnose` returns a :class:`Diagnosis`; this module holds the
+records only (like a results module): their fields, their strict-JSON form
+(``to_json_dict``, written by ``bayesbeam diagnose --json``) and the markdown report
+(:meth:`Diagnosis.narrative`, with :func:`describe_signatures` for the baseline's
+residual signatures). The procedure and its thresholds are in :mod:`bayesbeam.diagnosis.diagnose`,
+which re-exports every name defined here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = [
+    "CandidateScore",
+    "Diagnosis",
+    "Round",
+    "describe_signatures",
+]
+
+# --------------------------------------------------------------------------- records
+
+
+def _num(x: Any) -> Any:
+    """Float, or None when not finite (strict JSON)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """How one candidate extension fared in one round.
+
+    Attributes
+    ----------
+    cause, model : str
+        Catalogue name and the extended model's name.
+    delta_chi2_half : float
+        Screening statistic: gain in maximum log-likelihood over the current model
+        (nats); NaN when the candidate could not be fitted (see ``note``).
+    laplace_delta : float
+        Laplace Δ log Z (nats), NaN where a MAP lies on a prior bound.
+    confirmed : bool
+        Sampled and scored by bridge sampling / LOO.
+    delta_log_evidence, delta_log_evidence_err : float
+        Δ log Z and its error (nats); NaN unless confirmed.
+    delta_elpd, delta_elpd_se : float
+        Paired Δ ELPD (PSIS-LOO) and its se (nats); NaN unless confirmed.
+    significant : bool
+        ``Δ - 2 err > SIGNIFICANCE`` (:data:`bayesbeam.diagnosis.diagnose.SIGNIFICANCE`).
+    n_params : int
+        Sampled parameters of the extended model.
+    seconds : float
+        Wall-clock time spent on this candidate.
+    note : str
+        Why it was not screened or confirmed, reliability messages.
+    """
+
+    cause: str
+    model: str
+    delta_chi2_half: float
+    laplace_delta: float = math.nan
+    confirmed: bool = False
+    delta_log_evidence: float = math.nan
+    delta_log_evidence_err: float = math.nan
+    delta_elpd: float = math.nan
+    delta_elpd_se: float = math.nan
+    significant: bool = False
+    n_params: int = 0
+    seconds: float = 0.0
+    note: str = ""
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """Return a strict-JSON dictionary.
+
+        Returns
+        -------
+        dict
+        """
+        return {k: (_num(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class Round:
+    """One round of the diagnosis.
+
+    Attributes
+    ----------
+    index : int
+        1-based round number.
+    model_before, model_after : str
+        Current model and the extended one (equal when nothing was named).
+    cause : str
+        Named cause, or ``"none"``.
+    equivalent : tuple of str
+        Other causes the evidence cannot separate from the named one.
+    delta_log_evidence, delta_log_evidence_err : float
+        Gain of the named cause in log evidence (nats) and its error.
+    delta_elpd, delta_elpd_se : float
+        Gain in PSIS-LOO ELPD (nats) and its paired se.
+    rms_before, rms_after : float
+        RMS residual of the posterior-mean prediction (signal units).
+    coverage_before, coverage_after : float
+        Fraction of the data inside the central 90 % posterior-predictive interval.
+    parameter_moves : dict
+        Physical parameter → ``{"before": [mean, sd], "after": [mean, sd]}``.
+    signature : str
+        The residual signature of the current model that points to the cause.
+    signature_agrees : bool or None
+        Whether that signature is significant in the cause's direction (None when it
+        could not be measured).
+    candidates : tuple of CandidateScore
+    seconds : float
+    """
+
+    index: int
+    model_before: str
+    model_after: str
+    cause: str
+    equivalent: tuple[str, ...] = ()
+    delta_log_evidence: float = math.nan
+    delta_log_evidence_err: float = math.nan
+    delta_elpd: float = math.nan
+    delta_elpd_se: float = math.nan
+    rms_before: float = math.nan
+    rms_after: float = math.nan
+    coverage_before: float = math.nan
+    coverage_after: float = math.nan
+    parameter_moves: Mapping[str, Any] = field(default_factory=dict)
+    signature: str = ""
+    signature_agrees: bool | None = None
+    candidates: tuple[CandidateScore, ...] = ()
+    seconds: float = 0.0
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """Return a strict-JSON dictionary (the CLI's ``rounds`` entries).
+
+        Returns
+        -------
+        dict
+            ``cause``, ``equivalent``, ``delta_log_evidence``,
+            ``delta_log_evidence_err``, ``delta_elpd``, ``rms_before``, ``rms_after``
+            and the other fields.
+        """
+        return {
+            "index": self.index,
+            "cause": self.cause,
+            "equivalent": list(self.equivalent),
+            "delta_log_evidence": _num(self.delta_log_evidence),
+            "delta_log_evidence_err": _num(self.delta_log_evidence_err),
+            "delta_elpd": _num(self.delta_elpd),
+            "delta_elpd_se": _num(self.delta_elpd_se),
+            "rms_before": _num(self.rms_before),
+            "rms_after": _num(self.rms_after),
+            "coverage90_before": _num(self.coverage_before),
+            "coverage90_after": _num(self.coverage_after),
+            "model_before": self.model_before,
+            "model_after": self.model_after,
+            "parameter_moves": {
+                k: {s: [_num(x) for x in v[s]] for s in ("before", "after")}
+                for k, v in self.parameter_moves.items()
+            },
+            "signature": self.signature,
+            "signature_agrees": self.signature_agrees,
+            "candidates": [c.to_json_dict() for c in self.candidates],
+            "seconds": _num(self.seconds),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnosis:
+    """Outcome of :func:`bayesbeam.diagnosis.diagnose.diagnose`.
+
+    Attributes
+    ----------
+    trial : str
+        Trial name.
+    baseline, final_model : str
+    named_causes : tuple of str
+        Causes in the order found; empty when none is significant.
+    rounds : tuple of Round
+        The rounds that named a cause.
+    final_check : Round or None
+        The last round, in which nothing significant remained (None when the
+        round limit was reached first).
+    thresholds : dict
+        The thresholds used (nats).
+    signatures_before, signatures_after : Signatures or None
+        Residual signatures of the baseline and of the final model.
+    fits : dict of str to FitResult
+        Posterior of every sampled model.
+    notes : tuple of str
+        Reliability messages (unconverged chains, Pareto k, unavailable candidates).
+    seconds : float
+    """
+
+    trial: str
+    baseline: str
+    final_model: str
+    named_causes: tuple[str, ...]
+    rounds: tuple[Round, ...]
+    final_check: Round | None
+    thresholds: Mapping[str, float]
+    signatures_before: Any = None
+    signatures_after: Any = None
+    fits: Mapping[str, Any] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    seconds: float = 0.0
+
+    @property
+    def verdict(self) -> str:
+        """``"none"`` or the named causes joined by ``" + "``."""
+        return " + ".join(self.named_causes) if self.named_causes else "none"
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """Return the strict-JSON record written by ``bayesbeam diagnose --json``.
+
+        Returns
+        -------
+        dict
+            ``named_causes``, ``rounds`` (see :meth:`Round.to_json_dict`),
+            ``final_model``, ``baseline``, ``verdict``, ``final_check``,
+            ``thresholds``, ``signatures`` (before/after), ``notes``, ``seconds``.
+        """
+        sig = {
+            k: (None if s is None else s.to_json_dict())
+            for k, s in (("before", self.signatures_before), ("after", self.signatures_after))
+        }
+        return {
+            "trial": self.trial,
+            "baseline": self.baseline,
+            "final_model": self.final_model,
+            "named_causes": list(self.named_causes),
+            "verdict": self.verdict,
+            "rounds": [r.to_json_dict() for r in self.rounds],
+            "final_check": None if self.final_check is None else self.final_check.to_json_dict(),
+            "thresholds": dict(self.thresholds),
+            "signatures": sig,
+            "notes": list(self.notes),
+            "seconds": _num(self.seconds),
+        }
+
+    def narrative(self) -> str:
+        """Return a short markdown report: what is wrong, the named causes, the gains.
+
+        Returns
+        -------
+        str
+        """
+        lines = [f"# Diagnosis of trial `{self.trial}`", ""]
+        sb = self.signatures_before
+        lines.append(f"Baseline model `{self.baseline}`; final model `{self.final_model}`.")
+        if sb is not None:
+            lines += ["", "## What the baseline gets wrong", ""]
+            lines += [f"- {s}" for s in describe_signatures(sb)]
+        lines += ["", "## Named causes", ""]
+        if not self.named_causes:
+            lines.append("None: no extension in the catalogue improves the log evidence by more "
+                         f"than {self.thresholds['significance']:g} nats beyond twice its error.")
+        for r in self.rounds:
+            eq = (f" The data cannot separate it from {', '.join(r.equivalent)} (evidence "
+                  "within error): these explain the record equally well." if r.equivalent else "")
+            lines.append(
+                f"{r.index}. **{r.cause}**: Δ log Z = {r.delta_log_evidence:.1f} ± "
+                f"{r.delta_log_evidence_err:.1f} nats, Δ ELPD = {r.delta_elpd:.1f} ± "
+                f"{r.delta_elpd_se:.1f}; RMS residual {r.rms_before:.3g} → {r.rms_after:.3g}, "
+                f"90 % coverage {r.coverage_before:.2f} → {r.coverage_after:.2f}.{eq} "
+                f"Signature: {r.signature}"
+            )
+            moves = [
+                f"{k} {v['before'][0]:.4g} ± {v['before'][1]:.2g} → {v['after'][0]:.4g} ± "
+                f"{v['after'][1]:.2g}" for k, v in r.parameter_moves.items()
+            ]
+            if moves:
+                lines.append("   Parameters moved: " + "; ".join(moves) + ".")
+        if self.final_check is not None and self.named_causes:
+            best = max(self.final_check.candidates, key=lambda c: _nan_low(c.delta_chi2_half),
+                       default=None)
+            extra = (f" (best remaining: {best.cause}, Δχ²/2 = {best.delta_chi2_half:.1f})"
+                     if best is not None else "")
+            lines.append(f"\nAfter round {len(self.rounds)} nothing significant remains{extra}.")
+        lines += ["", "## Procedure", "",
+                  f"Screen by MAP gain (Δχ²/2 > {self.thresholds['screen']:g} nats), confirm by "
+                  "emcee + bridge-sampling evidence; significant when Δ log Z − 2 err > "
+                  f"{self.thresholds['significance']:g} nats; equivalent within "
+                  f"max(2 err, {self.thresholds['tie']:g}) nats of the best."]
+        if self.notes:
+            lines += ["", "## Notes", ""] + [f"- {n}" for n in self.notes]
+        return "\n".join(lines) + "\n"
+
+
+def _nan_low(x: float) -> float:
+    return x if math.isfinite(x) else -math.inf
+
+
+# --------------------------------------------------------------------------- signatures
+
+
+def describe_signatures(sig: Any) -> list[str]:
+    """Plain-language lines on what a fit's residual signatures show.
+
+    Parameters
+    ----------
+    sig : Signatures
+
+    Returns
+    -------
+    list of str
+    """
+    out = [f"RMS residual {sig.rms_residual:.3g} ({100 * sig.rms_residual / sig.rms_data:.1f} % "
+           f"of the data's RMS); 90 % predictive coverage {sig.coverage90:.2f}."]
+    white = "white" if sig.white else "NOT white"
+    what = "Residuals" if sig.whiteness_series == "residuals" else "AR(1) innovations"
+    out.append(f"{what} are {white} (Ljung–Box p = {sig.ljung_box_p:.2g}; lag-1 "
+               f"autocorrelation of the residuals {sig.lag1:.2f}).")
+    if math.isfinite(sig.ratio_shift):
+        out.append(f"f2/f1: data {sig.ratio_data:.4f}, model {sig.ratio_model:.4f} "
+                   f"({100 * sig.ratio_shift:+.2f} ± {100 * sig.ratio_shift_err:.2f} %).")
+    for m in sig.modes:
+        if m.data and m.model:
+            out.append(f"Mode {m.mode}: f data {m.data.frequency:.4g} Hz vs model "
+                       f"{m.model.frequency:.4g} Hz; ζ data {m.data.damping_ratio:.3g} vs model "
+                       f"{m.model.damping_ratio:.3g}.")
+    if math.isfinite(sig.decay_excess_diff) and sig.decay_excess_diff_err < 1.0:
+        out.append(f"Decay rate vs amplitude (mode 1): excess decay rate at the initial amplitude "
+                   f"data − model {100 * sig.decay_excess_diff:+.0f} ± "
+                   f"{100 * sig.decay_excess_diff_err:.0f} %.")
+    out.append(f"Residual mean {sig.residual_mean:.3g} (z = {sig.residual_mean_z:.1f}); "
+               f"{100 * sig.lowfreq_fraction:.1f} % of the residual power below f1/2.")
+    return out

@@ -1,0 +1,606 @@
+"""Show what a fitted model gets wrong: residual signatures of model discrepancy.
+
+For a fitted model (a :class:`~bayesbeam.inference.results.FitResult` and its
+:class:`~bayesbeam.inference.problem.Problem`) :func:`compute_signatures` measures, as numbers in a
+frozen :class:`Signatures` record:
+
+* the residual time series ``r = data - E[model]`` (posterior-mean prediction), its
+  RMS, mean and low-frequency content (a sensor offset or drift shows here);
+* the residual autocorrelation and the Ljung–Box whiteness test (Ljung & Box 1978,
+  Biometrika 65, 297-303): ``Q = n (n+2) Σ_{k=1..h} ρ̂_k² / (n-k)``, χ²_h under
+  whiteness. With the AR(1) noise model it is applied to the standardised innovations
+  ``(r_t - ρ r_{t-1})`` (the model's own white part), else to ``r``;
+* the residual and data spectra, with the model's modal frequencies;
+* per mode, the frequency and decay rate measured from the DATA and, by the same
+  band-pass + Hilbert method (:func:`~bayesbeam.trials.modal_id.band_modal_estimate`), from
+  the model's noise-free prediction: filter bias then cancels in the comparison. The modal
+  damping ratio of mode k is ``ζ_k = σ_k / sqrt(σ_k² + ω_dk²)``;
+* the ratio f2/f1 of data and model (a tip mass raises it, a root spring raises it
+  little, a stiffness falling toward the tip lowers it: physics.md §3 and
+  :mod:`bayesbeam.diagnosis.diagnose`), and ζ2/ζ1 (viscous damping falls with frequency, KV
+  rises: physics.md §2);
+* the decay rate of the first mode against its amplitude
+  (:func:`~bayesbeam.trials.modal_id.decay_rate_vs_amplitude`): a linear model decays at one
+  rate, quadratic air drag faster at large amplitude, dry friction faster at small
+  amplitude;
+* the posterior-predictive coverage of the data: the fraction of samples inside the
+  central 50 % and 90 % intervals of the predictive distribution (model + noise).
+
+:func:`plot_signatures` draws them on a :class:`matplotlib.figure.Figure` (object API,
+no pyplot state).
+
+The estimators on a signal alone (spectra, whiteness test, modal and decay-vs-amplitude
+estimates) live in :mod:`bayesbeam.trials.modal_id`; they are re-exported here, where they
+were first defined.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+# Re-exported: these names were defined here first and are imported from here.
+from bayesbeam.trials.modal_id import (
+    DecayAmplitude,
+    ModalEstimate,
+    SignatureError,
+    _finite,
+    autocorrelation,
+    band_modal_estimate,
+    damped_sinusoids,
+    decay_rate_vs_amplitude,
+    ljung_box,
+    periodogram,
+    spectral_peak,
+    uniform_grid,
+)
+
+__all__ = [
+    "DecayAmplitude",
+    "ModalEstimate",
+    "ModeComparison",
+    "SignatureError",
+    "Signatures",
+    "autocorrelation",
+    "band_modal_estimate",
+    "compute_signatures",
+    "damped_sinusoids",
+    "decay_rate_vs_amplitude",
+    "ljung_box",
+    "model_modes",
+    "periodogram",
+    "plot_signatures",
+    "posterior_predictive",
+    "spectral_peak",
+    "uniform_grid",
+]
+
+
+# --------------------------------------------------------------------------- model side
+
+
+def model_modes(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Natural frequencies (Hz) and damping ratios of the linear part of a model.
+
+    Parameters
+    ----------
+    problem : Problem
+    x : ndarray, shape (ndim,)
+        Physical sampled values (``problem.theta`` row).
+
+    Returns
+    -------
+    frequencies_hz, damping_ratios : ndarray, shape (k,)
+        Underdamped modes sorted by frequency; for a model with amplitude-dependent
+        damping, those of its linear part (the small-amplitude limit).
+    """
+    from bayesbeam.physics.forward import Forward
+
+    fwd = problem.forward
+    P = problem.forward_params(np.atleast_2d(x))[0]
+    if hasattr(fwd, "modes") and isinstance(fwd, Forward):
+        return fwd.modes(P)
+    model = problem.model
+    lin_parts = [p for p in model.parts if p not in model.nonlinear and p not in model.noise]
+    lin = Forward(problem.trial.beam, "+".join(lin_parts), problem.trial.times[:2],
+                  n_elements=problem.n_elements, initial=problem.initial)
+    vals = dict(zip(fwd.param_names, P, strict=True))
+    return lin.modes(np.array([vals[n] for n in lin.param_names]))
+
+
+def posterior_predictive(
+    problem: Any, result: Any, *, n_draws: int = 200, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Draws of the model signal and of replicated data from the posterior.
+
+    Parameters
+    ----------
+    problem : Problem
+    result : FitResult
+        Posterior samples of the same model.
+    n_draws : int
+        Number of posterior draws used (evenly spaced over the flattened chain).
+    rng : numpy.random.Generator
+        Source of the replicated noise.
+
+    Returns
+    -------
+    x : ndarray, shape (S, ndim)
+        Physical values of the valid draws.
+    y : ndarray, shape (S, T)
+        Noise-free model signal (offset included).
+    y_rep : ndarray, shape (S, T)
+        ``y`` plus noise drawn from the noise model: i.i.d. N(0, σ²), or the
+        stationary AR(1) with marginal sd σ and lag-one correlation ρ at the median
+        step (``ρ^(Δt/dt_ref)`` between stamps Δt apart, as in the likelihood).
+    """
+    if tuple(result.names) != tuple(problem.names):
+        raise SignatureError(
+            f"result parameters {list(result.names)} do not match the problem's "
+            f"{list(problem.names)}; pass the Problem of the fitted model"
+        )
+    U = np.asarray(result.chain.samples).reshape(-1, problem.ndim)
+    idx = np.unique(np.linspace(0, U.shape[0] - 1, min(n_draws, U.shape[0])).astype(int))
+    X = problem.theta(U[idx])
+    res = problem.predict(X)
+    X, y = X[res.valid], res.y[res.valid]
+    if y.shape[0] == 0:
+        raise SignatureError("no posterior draw gives a valid model signal")
+    names = list(problem.names)
+    sigma = X[:, names.index("sigma")]
+    S, T = y.shape
+    z = rng.standard_normal((S, T))
+    if "rho" in names:
+        rho = X[:, names.index("rho")]
+        steps = np.diff(problem.trial.times)
+        phi = rho[:, None] ** (steps / np.median(steps))[None, :]
+        e = np.empty((S, T))
+        e[:, 0] = z[:, 0]
+        for t in range(1, T):
+            e[:, t] = phi[:, t - 1] * e[:, t - 1] + np.sqrt(1 - phi[:, t - 1] ** 2) * z[:, t]
+        noise = sigma[:, None] * e
+    else:
+        noise = sigma[:, None] * z
+    return X, y, y + noise
+
+
+# --------------------------------------------------------------------------- the record
+
+
+@dataclass(frozen=True)
+class ModeComparison:
+    """One mode: measured from the data vs measured from the model's prediction.
+
+    Attributes
+    ----------
+    mode : int
+        1-based mode number.
+    f_model_eig, zeta_model_eig : float
+        Eigen-frequency (Hz) and damping ratio of the model at the posterior mean.
+    data, model : ModalEstimate or None
+        Band-pass + Hilbert estimates from the data and from the noise-free
+        posterior-mean prediction (None when the mode is not measurable).
+    """
+
+    mode: int
+    f_model_eig: float
+    zeta_model_eig: float
+    data: ModalEstimate | None
+    model: ModalEstimate | None
+
+    @property
+    def frequency_shift(self) -> float:
+        """Relative frequency difference data/model - 1 (NaN if not measured)."""
+        if self.data is None or self.model is None:
+            return math.nan
+        return self.data.frequency / self.model.frequency - 1.0
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """Return a JSON-serialisable dictionary.
+
+        Returns
+        -------
+        dict
+        """
+        def est(e: ModalEstimate | None) -> dict[str, float] | None:
+            return None if e is None else {k: _finite(v) for k, v in e.__dict__.items()}
+
+        return {
+            "mode": self.mode,
+            "f_model_eig_hz": _finite(self.f_model_eig),
+            "zeta_model_eig": _finite(self.zeta_model_eig),
+            "data": est(self.data),
+            "model": est(self.model),
+            "frequency_shift": _finite(self.frequency_shift),
+        }
+
+
+def _ratio_err(a: float, sa: float, b: float, sb: float) -> float:
+    return abs(a / b) * math.hypot(sa / a, sb / b)
+
+
+@dataclass(frozen=True, eq=False)
+class Signatures:
+    """Residual signatures of one fitted model on one trial (see the module docstring).
+
+    Scalars are in SI units of the signal unless stated. Arrays are kept for plotting;
+    :meth:`to_json_dict` gives the numbers (long arrays left out).
+
+    Attributes
+    ----------
+    model, quantity : str
+    times : ndarray, shape (T,)
+        Sample times in s.
+    data, prediction, residual : ndarray, shape (T,)
+        Measured signal, posterior-mean model signal, their difference.
+    band_lo, band_hi : ndarray, shape (T,)
+        Central 90 % posterior-predictive interval (model + noise).
+    rms_residual : float
+    rms_data : float
+    residual_mean, residual_mean_z : float
+        Mean residual, and it divided by its standard error (AR(1)-inflated).
+    lowfreq_fraction : float
+        Share of residual power below half the first frequency (offset / drift).
+    acf : ndarray, shape (L + 1,)
+        Residual autocorrelation, lags 0..L.
+    lag1 : float
+        ``acf[1]``.
+    ljung_box_q, ljung_box_p : float
+        Whiteness test statistic and p-value at ``ljung_box_lags`` lags.
+    ljung_box_lags : int
+    whiteness_series : str
+        'residuals' or 'innovations' (AR(1) models).
+    spectrum_f, spectrum_data, spectrum_residual : ndarray, shape (F,)
+        Amplitude spectra (Hz; signal units).
+    model_frequencies, model_damping : ndarray, shape (k,)
+        Modal frequencies (Hz) and damping ratios of the model.
+    modes : tuple of ModeComparison
+    ratio_data, ratio_model, ratio_shift, ratio_shift_err : float
+        f2/f1 measured from data and prediction, and ``data/model - 1`` ± se.
+    zeta_ratio_data, zeta_ratio_model : float
+        ζ2/ζ1 from data and prediction (frequency dependence of damping).
+    decay_data, decay_model : DecayAmplitude or None
+        Decay rate vs amplitude of mode 1 for the data and the prediction.
+    decay_excess_diff, decay_excess_diff_err : float
+        Difference data - model of the relative excess decay rate at the initial
+        amplitude (:class:`DecayAmplitude`), and its se: > 0 the data decay faster at
+        large amplitude than the model (drag), < 0 faster at small amplitude (friction).
+    coverage50, coverage90 : float
+        Fractions of data inside the central 50 % / 90 % predictive intervals.
+    notes : tuple of str
+    """
+
+    model: str
+    quantity: str
+    times: np.ndarray
+    data: np.ndarray
+    prediction: np.ndarray
+    residual: np.ndarray
+    band_lo: np.ndarray
+    band_hi: np.ndarray
+    rms_residual: float
+    rms_data: float
+    residual_mean: float
+    residual_mean_z: float
+    lowfreq_fraction: float
+    acf: np.ndarray
+    lag1: float
+    ljung_box_q: float
+    ljung_box_p: float
+    ljung_box_lags: int
+    whiteness_series: str
+    spectrum_f: np.ndarray
+    spectrum_data: np.ndarray
+    spectrum_residual: np.ndarray
+    model_frequencies: np.ndarray
+    model_damping: np.ndarray
+    modes: tuple[ModeComparison, ...]
+    ratio_data: float
+    ratio_model: float
+    ratio_shift: float
+    ratio_shift_err: float
+    zeta_ratio_data: float
+    zeta_ratio_model: float
+    decay_data: DecayAmplitude | None
+    decay_model: DecayAmplitude | None
+    decay_excess_diff: float
+    decay_excess_diff_err: float
+    coverage50: float
+    coverage90: float
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def white(self) -> bool:
+        """True when the Ljung–Box test does not reject whiteness at the 1 % level."""
+        return self.ljung_box_p >= 0.01
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """Return the numbers as a JSON-serialisable dictionary.
+
+        Returns
+        -------
+        dict
+            Scalars, the first 50 autocorrelation lags, the per-mode comparisons, the
+            decay-vs-amplitude tables and the notes (time series and spectra left out).
+        """
+        return {
+            "model": self.model,
+            "quantity": self.quantity,
+            "n_samples": int(self.times.size),
+            "rms_residual": _finite(self.rms_residual),
+            "rms_data": _finite(self.rms_data),
+            "residual_mean": _finite(self.residual_mean),
+            "residual_mean_z": _finite(self.residual_mean_z),
+            "lowfreq_fraction": _finite(self.lowfreq_fraction),
+            "acf": [_finite(v) for v in self.acf[:51]],
+            "lag1": _finite(self.lag1),
+            "ljung_box": {"q": _finite(self.ljung_box_q), "p": _finite(self.ljung_box_p),
+                          "lags": self.ljung_box_lags, "series": self.whiteness_series,
+                          "white_at_1pc": self.white},
+            "model_frequencies_hz": [_finite(v) for v in self.model_frequencies],
+            "model_damping_ratios": [_finite(v) for v in self.model_damping],
+            "modes": [m.to_json_dict() for m in self.modes],
+            "ratio_f2_f1": {"data": _finite(self.ratio_data), "model": _finite(self.ratio_model),
+                            "shift": _finite(self.ratio_shift),
+                            "shift_err": _finite(self.ratio_shift_err)},
+            "zeta2_over_zeta1": {"data": _finite(self.zeta_ratio_data),
+                                 "model": _finite(self.zeta_ratio_model)},
+            "decay_vs_amplitude": {
+                "data": None if self.decay_data is None else self.decay_data.to_json_dict(),
+                "model": None if self.decay_model is None else self.decay_model.to_json_dict(),
+                "excess_difference": _finite(self.decay_excess_diff),
+                "excess_difference_err": _finite(self.decay_excess_diff_err),
+            },
+            "coverage": {"central50": _finite(self.coverage50),
+                         "central90": _finite(self.coverage90)},
+            "notes": list(self.notes),
+        }
+
+
+def _residual_for_whiteness(
+    problem: Any, x_mean: np.ndarray, r: np.ndarray
+) -> tuple[np.ndarray, str]:
+    names = list(problem.names)
+    if "rho" not in names:
+        return r, "residuals"
+    rho = float(x_mean[names.index("rho")])
+    steps = np.diff(problem.trial.times)
+    phi = rho ** (steps / np.median(steps))
+    e = (r[1:] - phi * r[:-1]) / np.sqrt(np.maximum(1 - phi**2, 1e-12))
+    return e, "innovations"
+
+
+def compute_signatures(
+    problem: Any,
+    result: Any,
+    *,
+    seed: int = 0,
+    n_draws: int = 200,
+    n_modes: int = 3,
+    max_lag: int = 100,
+) -> Signatures:
+    """Measure the residual signatures of a fitted model.
+
+    Parameters
+    ----------
+    problem : Problem
+        The model's problem (trial, forward model, priors).
+    result : FitResult
+        Its posterior samples.
+    seed : int
+        Seed of the replicated-noise draws (coverage).
+    n_draws : int
+        Posterior draws for the predictive distribution.
+    n_modes : int
+        Modes compared (those below 0.9 × Nyquist and measurable).
+    max_lag : int
+        Largest autocorrelation lag kept.
+
+    Returns
+    -------
+    Signatures
+    """
+    trial = problem.trial
+    t = np.asarray(trial.times, dtype=float)
+    data = np.asarray(trial.values, dtype=float)
+    rng = np.random.default_rng(seed)
+    X, y, y_rep = posterior_predictive(problem, result, n_draws=n_draws, rng=rng)
+    pred = y.mean(axis=0)
+    r = data - pred
+    n = r.size
+    notes: list[str] = []
+    x_mean = X.mean(axis=0)
+    try:
+        f_model, z_model = model_modes(problem, x_mean)
+    except ValueError as err:  # e.g. an inadmissible mean of a multimodal posterior
+        notes.append(f"model modes not computed: {err}")
+        f_model, z_model = np.array([]), np.array([])
+    # Residual whiteness.
+    lags = int(min(max_lag, n - 1))
+    acf = autocorrelation(r, lags)
+    series, kind = _residual_for_whiteness(problem, x_mean, r)
+    h = int(min(20, max(2, series.size // 5)))
+    q, p = ljung_box(series, h, n_params=1 if kind == "innovations" else 0)
+    lag1 = float(acf[1])
+    rho_c = float(np.clip(lag1, 0.0, 0.99))
+    se_mean = float(np.std(r) / math.sqrt(n) * math.sqrt((1 + rho_c) / (1 - rho_c)))
+    mean_z = float(r.mean() / se_mean) if se_mean > 0 else 0.0
+    # Spectra.
+    sf, sd = periodogram(t, data)
+    _, sr = periodogram(t, r)
+    _, yg, dt = uniform_grid(t, r)
+    nyq = 0.5 / dt
+    f1_ref = float(f_model[0]) if f_model.size else float(sf[np.argmax(sd)])
+    pw = np.abs(np.fft.rfft(yg)) ** 2
+    fr = np.fft.rfftfreq(yg.size, dt)
+    lowfreq = float(pw[fr < 0.5 * f1_ref].sum() / pw.sum()) if pw.sum() > 0 else 0.0
+    # Per-mode comparison: the same estimator on data and prediction.
+    modes = []
+    fk = [float(f) for f in f_model[:n_modes] if f < 0.8 * nyq]
+    sk = [float(z) * 2 * np.pi * float(f) for f, z in zip(f_model, z_model, strict=False)]
+    if fk:
+        ed = damped_sinusoids(t, data, fk, sk[: len(fk)])
+        em = damped_sinusoids(t, pred, fk, sk[: len(fk)])
+        for k in range(len(fk)):
+            modes.append(ModeComparison(k + 1, fk[k], float(z_model[k]), ed[k], em[k]))
+    ratio_d = ratio_m = shift = shift_err = zr_d = zr_m = math.nan
+    if len(modes) >= 2 and all(m.data and m.model for m in modes[:2]):
+        d1, d2 = modes[0].data, modes[1].data
+        m1, m2 = modes[0].model, modes[1].model
+        ratio_d, ratio_m = d2.frequency / d1.frequency, m2.frequency / m1.frequency
+        shift = ratio_d / ratio_m - 1.0
+        shift_err = _ratio_err(d2.frequency, d2.frequency_se, d1.frequency, d1.frequency_se)
+        shift_err /= ratio_m
+        zr_d = d2.damping_ratio / d1.damping_ratio if d1.damping_ratio > 0 else math.nan
+        zr_m = m2.damping_ratio / m1.damping_ratio if m1.damping_ratio > 0 else math.nan
+    elif f_model.size >= 2:
+        notes.append("mode 2 not measurable: f2/f1 not compared")
+    # Decay rate vs amplitude of mode 1 (all other model modes, aliases folded, included).
+    dd = dm = None
+    ddiff = ddiff_err = math.nan
+    if f_model.size:
+        others = [float(f) for f in f_model[1:]]
+        dd = decay_rate_vs_amplitude(t, data, f1_ref, other=others)
+        dm = decay_rate_vs_amplitude(t, pred, f1_ref, other=others)
+        if dd is None or dm is None:
+            notes.append("decay vs amplitude: mode 1 not measurable")
+        else:
+            ddiff = dd.excess - dm.excess
+            ddiff_err = math.hypot(dd.excess_se, dm.excess_se)
+    lo, hi = np.quantile(y_rep, [0.05, 0.95], axis=0)
+    q25, q75 = np.quantile(y_rep, [0.25, 0.75], axis=0)
+    return Signatures(
+        model=problem.model.name,
+        quantity=trial.quantity,
+        times=t,
+        data=data,
+        prediction=pred,
+        residual=r,
+        band_lo=lo,
+        band_hi=hi,
+        rms_residual=float(np.sqrt(np.mean(r**2))),
+        rms_data=float(np.sqrt(np.mean(data**2))),
+        residual_mean=float(r.mean()),
+        residual_mean_z=mean_z,
+        lowfreq_fraction=lowfreq,
+        acf=acf,
+        lag1=lag1,
+        ljung_box_q=q,
+        ljung_box_p=p,
+        ljung_box_lags=h,
+        whiteness_series=kind,
+        spectrum_f=sf,
+        spectrum_data=sd,
+        spectrum_residual=sr,
+        model_frequencies=np.asarray(f_model, dtype=float),
+        model_damping=np.asarray(z_model, dtype=float),
+        modes=tuple(modes),
+        ratio_data=ratio_d,
+        ratio_model=ratio_m,
+        ratio_shift=shift,
+        ratio_shift_err=shift_err,
+        zeta_ratio_data=zr_d,
+        zeta_ratio_model=zr_m,
+        decay_data=dd,
+        decay_model=dm,
+        decay_excess_diff=ddiff,
+        decay_excess_diff_err=ddiff_err,
+        coverage50=float(np.mean((data >= q25) & (data <= q75))),
+        coverage90=float(np.mean((data >= lo) & (data <= hi))),
+        notes=tuple(notes),
+    )
+
+
+# --------------------------------------------------------------------------- plots
+
+
+def plot_signatures(sig: Signatures, *, title: str | None = None) -> Any:
+    """Draw the signatures on a new figure (matplotlib object API, no pyplot).
+
+    Panels: data, prediction and 90 % predictive band; residual; residual
+    autocorrelation with the ±1.96/√n white-noise band; data and residual spectra
+    with the model's modal frequencies; measured vs model frequency shift and damping
+    per mode; decay rate against amplitude (data and model).
+
+    Parameters
+    ----------
+    sig : Signatures
+    title : str, optional
+        Figure title (default: the model name).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Save with ``fig.savefig(path)``.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 11), layout="constrained")
+    axs = fig.subplots(3, 2)
+    t = sig.times - sig.times[0]
+    ax = axs[0, 0]
+    ax.fill_between(t, sig.band_lo, sig.band_hi, color="C1", alpha=0.3, lw=0,
+                    label="90 % predictive")
+    ax.plot(t, sig.data, "k", lw=0.6, label="data")
+    ax.plot(t, sig.prediction, "C1", lw=0.8, label="model")
+    ax.set(xlabel="time [s]", ylabel=f"{sig.quantity} [SI]",
+           title=f"coverage 90 %: {sig.coverage90:.2f}, 50 %: {sig.coverage50:.2f}")
+    ax.legend(fontsize=7, loc="upper right")
+    ax = axs[0, 1]
+    ax.plot(t, sig.residual, "C3", lw=0.6)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set(xlabel="time [s]", ylabel="residual [SI]",
+           title=f"RMS {sig.rms_residual:.3g} ({100 * sig.rms_residual / sig.rms_data:.1f} % "
+                 f"of data), mean z = {sig.residual_mean_z:.1f}")
+    ax = axs[1, 0]
+    lags = np.arange(sig.acf.size)
+    ax.bar(lags[1:], sig.acf[1:], width=0.8, color="C0")
+    bound = 1.96 / math.sqrt(sig.times.size)
+    ax.axhspan(-bound, bound, color="0.8", zorder=0)
+    ax.set(xlabel="lag [samples]", ylabel="autocorrelation",
+           title=f"Ljung–Box ({sig.whiteness_series}) Q={sig.ljung_box_q:.1f}, "
+                 f"p={sig.ljung_box_p:.2g}")
+    ax = axs[1, 1]
+    ax.semilogy(sig.spectrum_f, sig.spectrum_data + 1e-300, "k", lw=0.6, label="data")
+    ax.semilogy(sig.spectrum_f, sig.spectrum_residual + 1e-300, "C3", lw=0.6, label="residual")
+    for i, f in enumerate(sig.model_frequencies):
+        if f <= sig.spectrum_f[-1]:
+            ax.axvline(f, color="C1", ls="--", lw=0.8, label="model modes" if i == 0 else None)
+    top = float(np.max(sig.spectrum_data)) if sig.spectrum_data.size else 1.0
+    ax.set_ylim(top * 1e-6, top * 2)
+    ax.set(xlabel="frequency [Hz]", ylabel="amplitude [SI]", title="spectra")
+    ax.legend(fontsize=7)
+    ax = axs[2, 0]
+    ks = [m.mode for m in sig.modes if m.data and m.model]
+    if ks:
+        fs = [100 * m.frequency_shift for m in sig.modes if m.data and m.model]
+        zd = [m.data.damping_ratio for m in sig.modes if m.data and m.model]
+        zm = [m.model.damping_ratio for m in sig.modes if m.data and m.model]
+        ax.bar(np.array(ks) - 0.2, fs, width=0.4, color="C0", label="f data/model - 1 [%]")
+        ax2 = ax.twinx()
+        ax2.plot(ks, zd, "ks", label="ζ data")
+        ax2.plot(ks, zm, "C1o", label="ζ model")
+        ax2.set_ylabel("damping ratio")
+        ax2.legend(fontsize=7, loc="upper right")
+        ax.legend(fontsize=7, loc="upper left")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set(xlabel="mode", ylabel="frequency shift [%]",
+           title=f"f2/f1 shift {100 * sig.ratio_shift:+.2f} ± {100 * sig.ratio_shift_err:.2f} %")
+    ax = axs[2, 1]
+    for d, style, lab in ((sig.decay_data, "ks", "data"), (sig.decay_model, "C1o", "model")):
+        if d is None:
+            continue
+        if d.amplitude.size:
+            ax.plot(d.amplitude, d.rate, style, ms=4, label=f"{lab} (windows)")
+        a = np.linspace(0.0, d.amplitude0, 50)
+        ax.plot(a, d.rate0 * (1 + d.excess * a / d.amplitude0), style[:-1] + "-", lw=1,
+                label=f"{lab}: excess {d.excess:+.2f} ± {d.excess_se:.2f}")
+    ax.set(xlabel="mode-1 amplitude [SI]", ylabel="decay rate σ [1/s]",
+           title=f"decay vs amplitude: excess data − model {sig.decay_excess_diff:+.2f} "
+                 f"± {sig.decay_excess_diff_err:.2f}")
+    ax.legend(fontsize=7)
+    fig.suptitle(title or f"model {sig.model}: residual signatures")
+    return fig

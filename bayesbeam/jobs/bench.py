@@ -1,0 +1,222 @@
+"""Forward-model benchmark (issue: forward model; physics.md §4 timing reference).
+
+Runs in one process, on the source study's single-ply beam (L 0.3048 m, width 0.127 m,
+thickness 0.72 mm, mass 21 g) with a physical E = 6.2e10 Pa (f1 ≈ 11 Hz), 1280 samples
+at dt = 0.003906 s, model ``viscous+sh`` with b = 0.01 m and damping ratios of a few %:
+
+(i)   the package's batched forward model for 64 distinct parameter sets (S(b) included);
+(ii)  expm stepping of the same modal matrices (scipy.linalg.expm once per set, then
+      z_{k+1} = P z_k);
+(iii) scipy solve_ivp RK45 (rtol 1e-6) on the physical second-order system for one set, at
+      4 elements to keep it to seconds.
+
+Timings are medians over repeats; ratios are against (ii) and (iii) run in the same process.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.integrate import solve_ivp
+
+from bayesbeam.physics.beam import Beam
+from bayesbeam.physics.forward import Forward
+from bayesbeam.physics.propagate import single_blas_thread
+
+__all__ = ["bench_beam", "bench_params", "format_bench", "run_bench"]
+
+N_SETS = 64
+N_SAMPLES = 1280
+DT = 0.003906
+
+
+def bench_beam() -> Beam:
+    """Return the source's single-ply beam with a physical E (first frequency ≈ 11 Hz)."""
+    return Beam.rectangular(0.3048, 0.127, 0.72e-3, 0.021, E=6.2e10)
+
+
+def bench_params(fwd: Forward, n_sets: int, rng: np.random.Generator) -> np.ndarray:
+    """Draw ``n_sets`` distinct viscous+sh parameter sets giving ζ1 of ~1–3 %.
+
+    Parameters
+    ----------
+    fwd : Forward
+        A ``viscous+sh`` forward model with release initial condition.
+    n_sets : int
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (n_sets, 5)
+        Columns E, gamma, a, b, w0.
+    """
+    beam = fwd.beam
+    E = 6.2e10 * rng.uniform(0.9, 1.1, n_sets)
+    w1 = 1.875104069**2 * np.sqrt(E * beam.I / (beam.rhoA * beam.length**4))
+    zeta_v = rng.uniform(0.005, 0.015, n_sets)
+    gamma = 2 * beam.rhoA * w1 * zeta_v  # physics.md §2: ζ = gamma / (2 rhoA ω)
+    b = 0.01 * rng.uniform(0.9, 1.1, n_sets)
+    # Narrow-ish kernel acts like KV with c_d I = a b²/2 and ζ = c_d ω / (2E) (physics.md §2).
+    zeta_sh = rng.uniform(0.005, 0.015, n_sets)
+    a = 4 * E * beam.I * zeta_sh / (w1 * b**2)
+    w0 = np.full(n_sets, 5e-3)
+    return np.column_stack([E, gamma, a, b, w0])
+
+
+def _median_time(fn: Callable[[], object], repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def _expm_stepping(A: np.ndarray, z0: np.ndarray, h: np.ndarray, n: int) -> np.ndarray:
+    P = sla.expm(A * DT)
+    z = z0.copy()
+    y = np.empty(n)
+    for k in range(n):
+        y[k] = h @ z
+        z = P @ z
+    return y
+
+
+def _rk45_one(theta: np.ndarray, n_elements: int, n_samples: int) -> float:
+    beam = bench_beam()
+    times = np.arange(n_samples) * DT
+    fwd = Forward(beam, "viscous+sh", times, n_elements=n_elements)
+    fe = fwd.fe
+    E, gamma, a, b, w0 = theta
+    K = E * fe.K
+    D = gamma * fe.G + a * fwd.sh.matrix(b)
+    n = K.shape[0]
+    Minv = np.linalg.inv(fe.M)
+    shape = np.linalg.solve(K, fe.tip)
+    c0 = w0 * shape / (fe.tip @ shape)
+
+    def rhs(_t: float, x: np.ndarray) -> np.ndarray:
+        c, v = x[:n], x[n:]
+        return np.concatenate([v, -Minv @ (K @ c + D @ v)])
+
+    t0 = time.perf_counter()
+    sol = solve_ivp(
+        rhs,
+        (0, times[-1]),
+        np.concatenate([c0, np.zeros(n)]),
+        method="RK45",
+        rtol=1e-6,
+        atol=1e-12,
+        t_eval=times,
+    )
+    elapsed = time.perf_counter() - t0
+    if not sol.success:  # a failed run would make a meaningless (short) timing
+        raise RuntimeError(f"solve_ivp RK45 failed in the benchmark: {sol.message}")
+    return elapsed
+
+
+@single_blas_thread
+def run_bench(
+    *,
+    n_elements: int = 16,
+    repeats: int = 5,
+    rk45_elements: int = 4,
+    seed: int = 0,
+    n_sets: int = N_SETS,
+    n_samples: int = N_SAMPLES,
+) -> dict[str, float]:
+    """Run the benchmark and return its figures.
+
+    Parameters
+    ----------
+    n_elements : int
+        Elements of the forward model under test (16 in the issue).
+    repeats : int
+        Repeats for the medians.
+    rk45_elements : int
+        Elements for the RK45 reference (its cost grows as N⁴).
+    seed : int
+        Seed of the parameter draws.
+    n_sets : int
+        Parameter sets in the batch (64 in the issue; fewer for a quick smoke test).
+    n_samples : int
+        Samples per response at dt = 0.003906 s (1280 in the issue).
+
+    Returns
+    -------
+    dict
+        ``per_set_s`` (s per parameter set of the batched forward model),
+        ``expm_per_set_s``, ``rk45_per_set_s``, ``rk45_elements``, ``max_rel_diff``
+        (forward model vs expm stepping, max over up to 16 sets of max|Δy| / max|y|),
+        ``speedup_vs_expm``, ``speedup_vs_rk45``, ``n_sets``, ``n_samples``,
+        ``n_elements``.
+    """
+    for label, v in (("n_sets", n_sets), ("n_samples", n_samples), ("repeats", repeats)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+            raise ValueError(f"{label} must be a positive integer, got {v!r}")
+    if n_samples < 2:
+        raise ValueError(f"n_samples must be at least 2, got {n_samples}")
+    rng = np.random.default_rng(seed)
+    times = np.arange(n_samples) * DT
+    fwd = Forward(bench_beam(), "viscous+sh", times, n_elements=n_elements)
+    theta = bench_params(fwd, n_sets, rng)
+    fwd.simulate(theta)  # warm-up (caches, BLAS threads)
+    per_set = _median_time(lambda: fwd.simulate(theta), repeats) / n_sets
+    res = fwd.simulate(theta)
+    if not res.valid.all():
+        raise RuntimeError("benchmark parameter sets were rejected by the forward model")
+    y = res.y
+    A, z0, h = fwd.state_space(theta)
+    n_ref = min(n_sets, 16)
+    expm_times, diffs = [], []
+    for i in range(n_ref):
+        t0 = time.perf_counter()
+        y_ref = _expm_stepping(A[i], z0[i], h[i], n_samples)
+        expm_times.append(time.perf_counter() - t0)
+        diffs.append(np.max(np.abs(y[i] - y_ref)) / np.max(np.abs(y_ref)))
+    rk45_runs = [_rk45_one(theta[0], rk45_elements, n_samples) for _ in range(max(1, repeats // 2))]
+    rk45 = float(np.median(rk45_runs))
+    expm_per_set = float(np.median(expm_times))
+    return {
+        "per_set_s": per_set,
+        "expm_per_set_s": expm_per_set,
+        "rk45_per_set_s": rk45,
+        "rk45_elements": rk45_elements,
+        "max_rel_diff": float(np.max(diffs)),
+        "speedup_vs_expm": expm_per_set / per_set,
+        "speedup_vs_rk45": rk45 / per_set,
+        "n_sets": n_sets,
+        "n_samples": n_samples,
+        "n_elements": n_elements,
+    }
+
+
+def format_bench(res: dict[str, float]) -> str:
+    """Human-readable benchmark table.
+
+    Parameters
+    ----------
+    res : dict
+        Output of :func:`run_bench`.
+
+    Returns
+    -------
+    str
+    """
+    return "\n".join(
+        [
+            f"forward-model benchmark: viscous+sh, {res['n_elements']} elements, "
+            f"{res.get('n_samples', N_SAMPLES)} samples, {res['n_sets']} parameter sets "
+            "(medians)",
+            f"  batched forward model : {res['per_set_s'] * 1e6:10.1f} µs per set",
+            f"  expm stepping (scipy) : {res['expm_per_set_s'] * 1e6:10.1f} µs per set"
+            f"   ratio {res['speedup_vs_expm']:.1f}x",
+            f"  solve_ivp RK45 ({res['rk45_elements']} el.) : "
+            f"{res['rk45_per_set_s']:10.3f} s per set"
+            f"   ratio {res['speedup_vs_rk45']:.0f}x",
+            f"  max relative difference forward vs expm stepping: {res['max_rel_diff']:.2e}",
+        ]
+    )

@@ -1,0 +1,381 @@
+"""Fit tasks: what one fit is, its cache key, and how a worker computes it.
+
+A :class:`FitTask` is one model on one trial with a seed and every setting; it is
+picklable and self-contained, so :func:`run_fit_task` (the entry point that
+:mod:`bayesbeam.jobs.executor` sends to local processes or Dask workers) computes the same
+bytes wherever it runs. :func:`run_fit_task` writes a task's files into a scratch folder
+and returns their contents (the folder layout is in :mod:`bayesbeam.jobs.executor`); each task
+runs with the BLAS thread pool limited to one thread (:mod:`threadpoolctl`, when
+installed), and one task at a time per process.
+
+:func:`task_key` is the task's cache key: the SHA-256 of its trial (data file and TOML),
+model, settings and seed. Scheduling, the cache lookup and reading results back are in
+:mod:`bayesbeam.jobs.executor`, which re-exports every public name defined here.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import tempfile
+import threading
+import time
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bayesbeam._util import finite_json, json_default
+
+__all__ = [
+    "DEFAULT_SETTINGS",
+    "ExecutorError",
+    "FitTask",
+    "TaskOutcome",
+    "fit_tasks",
+    "run_fit_task",
+    "task_key",
+]
+
+#: Settings of one fit (passed to :func:`bayesbeam.comparison.compare.evaluate`) and of its plots.
+DEFAULT_SETTINGS: dict[str, Any] = {
+    "n_elements": 16,
+    "initial": "release",
+    "nwalkers": None,
+    "target_ess": 1000.0,
+    "max_steps": 20_000,
+    "min_steps": 300,
+    "n_loo_draws": 1000,
+    "proposal": "normal",
+    "plots": False,
+    "plot_dpi": 90,
+    "ppc_draws": 100,
+}
+
+_EVALUATE_KEYS = ("n_elements", "initial", "nwalkers", "target_ess", "max_steps", "min_steps",
+                  "n_loo_draws", "proposal")
+
+
+class ExecutorError(ValueError):
+    """Bad executor input (jobs, scheduler, tasks); the message says how to fix it."""
+
+
+# --------------------------------------------------------------------------- tasks
+
+
+def _sha256_file(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@dataclass(frozen=True)
+class FitTask:
+    """One fit: a model on a trial with a seed and settings (picklable, self-contained).
+
+    Attributes
+    ----------
+    trial_file : str
+        Absolute path of the trial TOML.
+    trial_name : str
+        The trial's name (folder name of its results).
+    data_sha256 : str
+        SHA-256 of the trial's data file (``Trial.sha256``).
+    toml_sha256 : str
+        SHA-256 of the trial TOML (the beam description).
+    model : str
+        Canonical model name, e.g. ``"viscous+kv"``.
+    seed : int
+        Seed of the fit and of the evidence estimate.
+    settings : dict
+        Full settings (:data:`DEFAULT_SETTINGS` updated by the caller's).
+    """
+
+    trial_file: str
+    trial_name: str
+    data_sha256: str
+    toml_sha256: str
+    model: str
+    seed: int
+    settings: dict = field(default_factory=dict, hash=False)
+
+    @property
+    def key(self) -> str:
+        """Cache key: SHA-256 (hex) of trial hashes, model, settings and seed."""
+        return task_key(self)
+
+    @property
+    def relpath(self) -> str:
+        """Result folder relative to the output folder: ``<trial>/<model>``."""
+        return f"{self.trial_name}/{self.model}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON record of the task (``task.json``), key included."""
+        d = dataclasses.asdict(self)
+        d["key"] = self.key
+        return d
+
+
+def task_key(task: FitTask) -> str:
+    """SHA-256 of what determines a task's result.
+
+    Parameters
+    ----------
+    task : FitTask
+
+    Returns
+    -------
+    str
+        Hex digest of the canonical JSON of data SHA-256, TOML SHA-256, model,
+        settings and seed (file paths and names excluded: moving the data does not
+        invalidate the cache).
+    """
+    payload = {
+        "data_sha256": task.data_sha256,
+        "toml_sha256": task.toml_sha256,
+        "model": task.model,
+        "settings": task.settings,
+        "seed": int(task.seed),
+    }
+    text = json.dumps(payload, sort_keys=True, default=str, allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def fit_tasks(
+    trials: Iterable[str | Path],
+    models: Sequence[str],
+    *,
+    seed: int = 0,
+    settings: Mapping[str, Any] | None = None,
+) -> list[FitTask]:
+    """Build the tasks of every (trial, model) pair, trials outermost.
+
+    Parameters
+    ----------
+    trials : iterable of path
+        Trial TOML files.
+    models : sequence of str
+        Model names.
+    seed : int
+        Seed of every task (as :func:`bayesbeam.comparison.compare.compare` uses one seed for all
+        models, so a task's result equals the corresponding part of ``compare``).
+    settings : mapping, optional
+        Overrides of :data:`DEFAULT_SETTINGS`.
+
+    Returns
+    -------
+    list of FitTask
+
+    Raises
+    ------
+    ExecutorError
+        For unknown settings or a bad seed.
+    """
+    from bayesbeam.physics.models import parse_model
+    from bayesbeam.trials.io import read_trial
+
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ExecutorError(f"seed must be a non-negative int, got {seed!r}")
+    s = dict(DEFAULT_SETTINGS)
+    unknown = sorted(set(settings or {}) - set(s))
+    if unknown:
+        raise ExecutorError(f"unknown settings {unknown}; known: {sorted(s)}")
+    s.update(settings or {})
+    names = [parse_model(m).name for m in models]
+    if not names:
+        raise ExecutorError("give at least one model, e.g. ['viscous', 'viscous+kv']")
+    out = []
+    for path in trials:
+        path = Path(path).resolve()
+        trial = read_trial(path)
+        for m in names:
+            out.append(FitTask(
+                trial_file=str(path), trial_name=trial.name, data_sha256=trial.sha256,
+                toml_sha256=_sha256_file(path), model=m, seed=int(seed), settings=dict(s),
+            ))
+    return out
+
+
+@dataclass(frozen=True)
+class TaskOutcome:
+    """What a finished task reports back (the files are already written).
+
+    Attributes
+    ----------
+    task : FitTask
+    path : pathlib.Path
+        The task's result folder.
+    score : dict
+        Contents of ``score.json``.
+    cached : bool
+        True when the result was found in the cache and not recomputed.
+    seconds : float
+        Wall-clock seconds of the task (0 for a cached one).
+    """
+
+    task: FitTask
+    path: Path
+    score: dict
+    cached: bool
+    seconds: float
+
+
+# --------------------------------------------------------------------------- workers
+
+
+_LIMIT_LOCK = threading.Lock()
+_TASK_LOCK = threading.Lock()
+_LIMIT_STATE: dict[str, Any] = {"depth": 0, "controller": None}
+
+
+@contextlib.contextmanager
+def _single_thread() -> Iterator[None]:
+    """Limit BLAS/OpenMP pools to one thread (threadpoolctl), if it is installed.
+
+    The limit is process-wide; with tasks in several threads of one process (a Dask
+    worker with threads) the first task to enter sets it and the last to leave
+    restores the original sizes.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # optional: results stay correct, only oversubscription risk
+        yield
+        return
+    with _LIMIT_LOCK:
+        if _LIMIT_STATE["depth"] == 0:
+            _LIMIT_STATE["controller"] = threadpool_limits(limits=1)
+        _LIMIT_STATE["depth"] += 1
+    try:
+        yield
+    finally:
+        with _LIMIT_LOCK:
+            _LIMIT_STATE["depth"] -= 1
+            if _LIMIT_STATE["depth"] == 0:
+                _LIMIT_STATE["controller"].restore_original_limits()
+                _LIMIT_STATE["controller"] = None
+
+
+def _dump(path: Path, obj: Any) -> None:
+    text = json.dumps(finite_json(json.loads(json.dumps(obj, default=json_default))), indent=2,
+                      allow_nan=False)
+    path.write_text(text + "\n", encoding="utf-8")
+
+
+def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any]:
+    """Fit, score and (optionally) plot one task into ``folder``; return score.json."""
+    import numpy as np
+
+    from bayesbeam.comparison.compare import evaluate
+    from bayesbeam.inference.problem import Problem
+    from bayesbeam.trials.io import read_trial
+
+    s = task.settings
+    trial = read_trial(task.trial_file)
+    if trial.sha256 != task.data_sha256:
+        raise ExecutorError(
+            f"{task.trial_file}: its data changed since the task was made (SHA-256 "
+            f"{trial.sha256[:12]}..., task {task.data_sha256[:12]}...); rebuild the tasks"
+        )
+    problem = Problem(trial, task.model, n_elements=int(s["n_elements"]), initial=s["initial"])
+    kw = {k: s[k] for k in _EVALUATE_KEYS}
+    score = evaluate(trial, task.model, seed=task.seed, problem=problem, progress=False, **kw)
+    res = score.result
+    res.save(folder)
+    record = score.to_dict()
+    record.update({
+        "trial": task.trial_name,
+        "key": task.key,
+        "seed": task.seed,
+        "settings": dict(s),
+        "evidence": score.evidence.to_dict(),
+        "loo": {**score.loo.to_dict(), "reff": score.loo.reff},
+        "waic": score.waic.to_dict(),
+        "posterior": res.summary(),
+        "diagnostics": {k: v for k, v in res.diagnostics().items()
+                        if k not in ("tau", "ess", "rhat")},
+        "provenance": dict(res.provenance),
+        "priors": res.priors.to_dict(),
+    })
+    np.savez_compressed(
+        folder / "score.npz",
+        loo_pointwise=score.loo.pointwise, pareto_k=score.loo.pareto_k,
+        waic_pointwise=score.waic.pointwise, p_waic_i=score.waic.p_waic_i,
+    )
+    if s.get("plots"):
+        record["figures"] = _plots(trial, problem, score, folder, s)
+    # Timing of the whole task (fit, evidence, criteria, plots) in this worker.
+    record["task_seconds"] = time.perf_counter() - t0
+    record["task_cpu_seconds"] = time.process_time() - c0
+    _dump(folder / "score.json", record)
+    _dump(folder / "task.json", task.to_dict())
+    return record
+
+
+def _plots(trial: Any, problem: Any, score: Any, folder: Path, s: Mapping) -> list[str]:
+    import numpy as np
+
+    from bayesbeam.report.plots import plot_fit, plot_residual_spectrum, posterior_predictive
+
+    res = score.result
+    dpi = int(s.get("plot_dpi", 90))
+    rng = np.random.default_rng([int(score.result.chain.seed), 1])
+    draws = posterior_predictive(problem, res, int(s.get("ppc_draws", 100)), rng)
+    plot_fit(trial, problem, res, folder / "fit.png", rng=rng, draws=draws, dpi=dpi)
+    resid = np.asarray(trial.values) - np.median(draws[0], axis=0)
+    X = problem.theta(np.asarray(res.map_u)[None]) if res.map_u is not None else None
+    freqs = None
+    if X is not None:
+        try:
+            freqs = problem.forward.modes(problem.forward_params(X)[0])[0]
+        except ValueError:  # an inadmissible MAP cannot happen after a fit; plot without
+            freqs = None
+    plot_residual_spectrum(trial, resid, folder / "residual_spectrum.png",
+                           mode_freqs_hz=freqs, dpi=dpi)
+    res.plot_corner(folder / "corner.png", dpi=min(dpi, 60))
+    return ["fit.png", "residual_spectrum.png", "corner.png"]
+
+
+def run_fit_task(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float]:
+    """Run one task in a scratch folder and return its files (executor entry point).
+
+    Parameters
+    ----------
+    task : FitTask
+
+    Returns
+    -------
+    files : dict of str to bytes
+        File name → contents.
+    score : dict
+        The ``score.json`` record.
+    seconds : float
+        Wall-clock time of the task.
+
+    Raises
+    ------
+    ExecutorError
+        When the fit fails; the message names the task and the cause.
+    """
+    # One task at a time per process: the warning filters that evaluate() uses to record
+    # the sampler's warnings and the BLAS thread limit are process-wide, so tasks in
+    # threads of one process (a threaded Dask worker) must not overlap. Parallelism comes
+    # from processes (a process pool, or Dask workers with one thread each).
+    with _TASK_LOCK:
+        try:
+            return _run_locked(task)
+        except Exception as err:  # say which task failed; the cause stays chained
+            raise ExecutorError(
+                f"fit of {task.model!r} on {task.trial_name} ({task.trial_file}) failed: "
+                f"{type(err).__name__}: {err}"
+            ) from err
+
+
+def _run_locked(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float]:
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    with _single_thread(), tempfile.TemporaryDirectory(prefix="bayesbeam-task-") as tmp:
+        folder = Path(tmp)
+        record = _compute(task, folder, t0, c0)
+        files = {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()
+                 and p.name != "chain.h5"}
+    return files, record, time.perf_counter() - t0

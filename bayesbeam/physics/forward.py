@@ -1,0 +1,626 @@
+"""Forward model: physical parameters → signal at the sensor, batched over parameter sets.
+
+Data flow (physics.md §1, §4): beam description → FE matrices (:mod:`bayesbeam.physics.fem`) and
+spatial-hysteresis operator (:mod:`bayesbeam.physics.hysteresis`) → undamped modal basis
+(Φ M-orthonormal, Φᵀ K Φ = Ω²) → modal damping C = Φᵀ D Φ → exact response of
+z' = A z, z = [Ω q; q'] (:mod:`bayesbeam.physics.propagate`) → sensor output.
+
+The modal form keeps the state matrix well conditioned even with Kelvin–Voigt damping
+(physics.md §4, "Conditioning"). No modes are dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from bayesbeam.physics import propagate
+from bayesbeam.physics.beam import Beam
+from bayesbeam.physics.fem import FEModel, assemble, static_tip_shape
+from bayesbeam.physics.hysteresis import HysteresisOperator
+from bayesbeam.physics.models import Model, parse_model
+
+__all__ = [
+    "Forward",
+    "ForwardError",
+    "Response",
+    "initial_names",
+    "modal_properties",
+    "parameter_columns",
+]
+
+# Admissible ranges of the physical parameters (SI); outside them a set is invalid.
+_LOWER = {
+    "E": (0.0, False),
+    "gamma": (0.0, True),
+    "c_d": (0.0, True),
+    "a": (0.0, True),
+    "b": (0.0, False),
+    "tip_mass": (0.0, True),
+    "root_spring": (0.0, False),
+    "stiffness_gradient": (-2.0, False),
+    "w0": (-np.inf, False),
+    "p0": (-np.inf, False),
+}
+_UPPER = {"stiffness_gradient": 2.0}
+
+
+class ForwardError(ValueError):
+    """The forward model was set up or called with invalid input."""
+
+
+@dataclass(frozen=True)
+class Response:
+    """Batched sensor signal.
+
+    Attributes
+    ----------
+    y : ndarray, shape (B, T)
+        Signal in SI units of the sensor's quantity (m, m/s or m/s^2); rows of
+        invalid sets are zero.
+    valid : ndarray of bool, shape (B,)
+        False where the parameter set is outside its admissible range or the
+        solution was not finite.
+    """
+
+    y: np.ndarray
+    valid: np.ndarray
+
+
+def initial_names(initial: str) -> tuple[str, ...]:
+    """Names of the initial-condition parameters of an ``initial`` kind.
+
+    Parameters
+    ----------
+    initial : str
+        'release', 'impulse', 'modes:K' or 'state'.
+
+    Returns
+    -------
+    tuple of str
+    """
+    if initial == "release":
+        return ("w0",)
+    if initial == "impulse":
+        return ("p0",)
+    if initial.startswith("modes:"):
+        try:
+            k = int(initial.split(":", 1)[1])
+        except ValueError:
+            k = 0
+        if k < 1:
+            raise ForwardError(f"initial={initial!r}: use 'modes:K' with K a positive integer")
+        return tuple(n for i in range(1, k + 1) for n in (f"A{i}", f"B{i}"))
+    if initial == "state":
+        return ()
+    raise ForwardError(
+        f"unknown initial condition {initial!r}; use 'release' (tip deflection w0, m), "
+        "'impulse' (tip impulse p0, N s), 'modes:K' (first K modal amplitudes at the sensor, m) "
+        "or 'state' (a fixed initial_state=(c0, v0))"
+    )
+
+
+def parameter_columns(
+    theta: np.ndarray | dict,
+    names: tuple[str, ...],
+    error: type[ForwardError] = ForwardError,
+) -> np.ndarray:
+    """Parameter sets as a (B, P) array with columns ``names``.
+
+    Shared by :class:`Forward` and the forward models built on it (e.g.
+    :class:`bayesbeam.physics.nonlinear.NonlinearForward`), so that all take the same inputs.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (B, P) or (P,), or dict of name → array
+        Parameter sets (SI units); a dict's values are broadcast together.
+    names : tuple of str
+        Column names, in order (a model's ``param_names``).
+    error : type of ForwardError, optional
+        Exception class raised for a missing name or a wrong shape.
+
+    Returns
+    -------
+    ndarray, shape (B, P)
+
+    Raises
+    ------
+    ForwardError
+        Or the given ``error`` class: a name is missing from a dict, or the shape is not
+        (B, P).
+    """
+    if isinstance(theta, dict):
+        missing = [p for p in names if p not in theta]
+        if missing:
+            raise error(f"missing parameters {missing}; need {list(names)}")
+        cols = [np.atleast_1d(np.asarray(theta[p], dtype=float)) for p in names]
+        theta = np.column_stack(np.broadcast_arrays(*cols))
+    theta = np.asarray(theta, dtype=float)
+    if theta.ndim == 1:
+        theta = theta[None, :]
+    if theta.ndim != 2 or theta.shape[1] != len(names):
+        raise error(
+            f"theta must have shape (B, {len(names)}) with columns "
+            f"{list(names)}, got {theta.shape}"
+        )
+    return theta
+
+
+def _eigh_batched(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Batched ``eigh`` that loses only the sets LAPACK fails on (finite but absurd scales).
+
+    Returns eigenvalues (B, n), eigenvectors (B, n, n) and a (B,) mask of failed sets, whose
+    results are replaced by those of the identity.
+    """
+    failed = np.zeros(X.shape[0], dtype=bool)
+    try:
+        w, V = np.linalg.eigh(X)
+    except np.linalg.LinAlgError:
+        n = X.shape[1]
+        w, V = np.ones(X.shape[:2]), np.broadcast_to(np.eye(n), X.shape).copy()
+        for k in range(X.shape[0]):
+            try:
+                w[k], V[k] = np.linalg.eigh(X[k])
+            except np.linalg.LinAlgError:
+                failed[k] = True  # flagged invalid by the caller
+    return w, V, failed
+
+
+class Forward:
+    """Batched forward model of one trial: parameter sets → sensor signal.
+
+    Parameters
+    ----------
+    beam : Beam
+        Beam description, including sensor position and measured quantity.
+    model : str or Model
+        Damping laws and structural extensions, e.g. ``'viscous+sh'``.
+    times : array_like, shape (T,)
+        Sample times in s, strictly increasing; the initial condition holds at
+        ``times[0]``. Uniform spacing (to 1e-9 relative) takes the fast propagator.
+    n_elements : int
+        Number of Hermite elements.
+    initial : str
+        'release' (static tip load released; parameter ``w0`` = tip deflection in m),
+        'impulse' (tip impulse ``p0`` in N s from rest), 'modes:K' (displacement
+        ``A_k`` and velocity/ω ``B_k`` of the first K modes at the sensor, m) or 'state'.
+    initial_state : tuple of ndarray, optional
+        ``(c0, v0)`` dof vectors (shape (n,)) for ``initial='state'``.
+    t0 : float, optional
+        Instant (s) at which the initial condition holds, ``t0 <= times[0]``; default
+        ``times[0]`` (a decimated trial keeps its release instant in ``Trial.t0``).
+    """
+
+    def __init__(
+        self,
+        beam: Beam,
+        model: str | Model,
+        times: np.ndarray,
+        *,
+        n_elements: int = 16,
+        initial: str = "release",
+        initial_state: tuple[np.ndarray, np.ndarray] | None = None,
+        t0: float | None = None,
+    ) -> None:
+        if not isinstance(beam, Beam):
+            raise ForwardError("beam must be a bayesbeam.Beam")
+        self.beam = beam
+        self.model = parse_model(model)
+        if self.model.nonlinear:
+            raise ForwardError(
+                f"model {self.model.name!r} is nonlinear; use bayesbeam.physics.nonlinear for "
+                "amplitude-dependent damping"
+            )
+        t = np.asarray(times, dtype=float)
+        if t.ndim != 1 or t.size < 2 or not np.all(np.isfinite(t)):
+            raise ForwardError("times must be a 1-D array of at least 2 finite values in s")
+        steps = np.diff(t)
+        if np.any(steps <= 0):
+            raise ForwardError("times must be strictly increasing (sort the samples, drop repeats)")
+        self.times = t
+        t0 = float(t[0]) if t0 is None else float(t0)
+        if not np.isfinite(t0) or t0 > t[0]:
+            raise ForwardError(f"t0 ({t0} s) must be finite and not after the first sample")
+        self.t0 = t0
+        self._lead = float(t[0] - t0)
+        self._t = t - t[0]
+        self._dt = float(np.mean(steps))
+        self.uniform = bool(np.max(np.abs(steps - self._dt)) <= 1e-9 * self._dt)
+        self.initial = initial
+        self._init_names = initial_names(initial)
+        root_dof = beam.root_spring is not None or "root_spring" in self.model.structural
+        self.fe: FEModel = assemble(beam, n_elements, root_dof=root_dof)
+        n = self.fe.M.shape[0]
+        if initial.startswith("modes:") and len(self._init_names) // 2 > n:
+            raise ForwardError(
+                f"initial={initial!r} asks for {len(self._init_names) // 2} modes but "
+                f"{n_elements} elements have only {n}; use K <= {n}"
+            )
+        if initial == "state":
+            if initial_state is None:
+                raise ForwardError("initial='state' needs initial_state=(c0, v0)")
+            c0, v0 = (np.asarray(v, dtype=float) for v in initial_state)
+            if c0.shape != (n,) or v0.shape != (n,):
+                raise ForwardError(f"initial_state vectors must have shape ({n},)")
+            self._state = (c0, v0)
+        self.sh = HysteresisOperator(self.fe.nodes, root_dof) if "sh" in self.model.laws else None
+        self.sensor = self.fe.shape(np.array([beam.sensor_x]))[0]
+        self.quantity = beam.quantity
+        self.param_names: tuple[str, ...] = self.model.physical_params + self._init_names
+        # Fast path: only E changes K, so the modal basis is fixed and ω ∝ sqrt(E).
+        self._fixed = not self.model.structural and beam.root_spring is None
+        if self._fixed:
+            w2, phi = sla.eigh(self.fe.K, self.fe.M)
+            self._w_unit = np.sqrt(np.maximum(w2, 0.0))
+            self._phi = phi
+            self._G = phi.T @ self.fe.G @ phi
+            self._KV = phi.T @ self.fe.KV @ phi
+            # Static tip-load shape by statics (fem.static_tip_shape: a few ulp, where a solve
+            # with the ill-conditioned K loses ~1e-11), normalised to unit tip deflection.
+            shape = static_tip_shape(self.fe, 1.0)
+            self._release = shape / (self.fe.tip @ shape)
+            # Modal images of the fixed initial-condition shapes (per unit w0 / p0), so that
+            # a batch only scales them: q0 = Φᵀ M c0 and q0' = Φᵀ M M⁻¹ tip p0 = Φᵀ tip p0.
+            self._q_release = phi.T @ (self.fe.M @ self._release)
+            self._q_impulse = phi.T @ self.fe.tip
+
+    # -- helpers --------------------------------------------------------------------
+    def _columns(self, theta: np.ndarray | dict) -> np.ndarray:
+        return parameter_columns(theta, self.param_names)
+
+    def check(self, theta: np.ndarray) -> np.ndarray:
+        """Return the mask of admissible parameter sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P)
+
+        Returns
+        -------
+        ndarray of bool, shape (B,)
+        """
+        theta = self._columns(theta)
+        ok = np.all(np.isfinite(theta), axis=1)
+        for j, name in enumerate(self.param_names):
+            lo, closed = _LOWER.get(name, (-np.inf, False))
+            ok &= theta[:, j] >= lo if closed else theta[:, j] > lo
+            if name in _UPPER:
+                ok &= theta[:, j] < _UPPER[name]
+        return ok
+
+    def _get(self, theta: np.ndarray, name: str, default: float = 0.0) -> np.ndarray:
+        if name in self.param_names:
+            return theta[:, self.param_names.index(name)]
+        return np.full(theta.shape[0], default)
+
+    def modal_system(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Modal frequencies, damping matrices and mode shapes for valid sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P)
+            Admissible parameter sets (see :meth:`check`).
+
+        Returns
+        -------
+        omega : ndarray, shape (B, m)
+            Undamped natural frequencies in rad/s.
+        C : ndarray, shape (B, m, m)
+            Modal damping matrices Φᵀ D Φ in 1/s.
+        phi : ndarray, shape (B, n, m) or (n, m)
+            M-orthonormal mode shapes (shared when the structure is fixed).
+        """
+        theta = self._columns(theta)
+        B = theta.shape[0]
+        E = self._get(theta, "E")
+        if self._fixed:
+            phi = self._phi
+            omega = np.sqrt(E)[:, None] * self._w_unit[None, :]
+            C = np.zeros((B,) + self._G.shape)
+            if "viscous" in self.model.laws:
+                C += self._get(theta, "gamma")[:, None, None] * self._G
+            if "kv" in self.model.laws:
+                C += self._get(theta, "c_d")[:, None, None] * self._KV
+            if self.sh is not None:
+                a = self._get(theta, "a")
+                C += a[:, None, None] * self.sh.projected(self._get(theta, "b"), phi)
+            return omega, C, phi
+        fe = self.fe
+        mt = self._get(theta, "tip_mass")
+        kr = self._get(theta, "root_spring", self.beam.root_spring or 0.0)
+        g = self._get(theta, "stiffness_gradient")
+        M = fe.M[None] + mt[:, None, None] * fe.M_tip[None]
+        K = E[:, None, None] * (fe.K[None] + g[:, None, None] * fe.K_grad[None])
+        K = K + kr[:, None, None] * fe.K_root[None]
+        # Sets whose matrices overflow (e.g. a huge tip mass) would make LAPACK fail for the
+        # whole batch: give them harmless matrices here and NaN frequencies below, so that
+        # simulate() flags them invalid instead of raising.
+        bad = ~(np.isfinite(M).all(axis=(1, 2)) & np.isfinite(K).all(axis=(1, 2)))
+        if bad.any():
+            M[bad] = fe.M
+            K[bad] = fe.K + fe.K_root  # positive definite with or without a root dof
+        # Generalised symmetric eigenproblem via Cholesky of M (positive definite: the beam's
+        # own M plus a tip mass >= 0): K̃ = L⁻¹ K L⁻ᵀ.
+        Lc = np.linalg.cholesky(M)
+        Li = np.linalg.inv(Lc)
+        Kt = Li @ K @ np.swapaxes(Li, 1, 2)
+        Kt = 0.5 * (Kt + np.swapaxes(Kt, 1, 2))
+        bad |= ~np.isfinite(Kt).all(axis=(1, 2))
+        Kt[bad] = np.eye(Kt.shape[1])
+        w2, V, failed = _eigh_batched(Kt)
+        bad |= failed
+        phi = np.swapaxes(Li, 1, 2) @ V
+        omega = np.sqrt(np.maximum(w2, 0.0))
+        omega[bad] = np.nan
+        pt = np.swapaxes(phi, 1, 2)
+        C = np.zeros((B, phi.shape[2], phi.shape[2]))
+        if "viscous" in self.model.laws:
+            C += self._get(theta, "gamma")[:, None, None] * (pt @ fe.G @ phi)
+        if "kv" in self.model.laws:
+            C += self._get(theta, "c_d")[:, None, None] * (pt @ fe.KV @ phi)
+        if self.sh is not None:
+            a, b = self._get(theta, "a"), self._get(theta, "b")
+            # One batched S(b_k) per set (the mode shapes differ between sets).
+            C += a[:, None, None] * self.sh.projected(b, phi)
+        self._last_K = K
+        return omega, C, phi
+
+    def _initial_state(
+        self, theta: np.ndarray, omega: np.ndarray, phi: np.ndarray
+    ) -> np.ndarray | None:
+        """Return the initial modal state z0 = [Ω q0; q0'], shape (B, 2m)."""
+        fe = self.fe
+        B, m = omega.shape
+        phi_b = np.broadcast_to(phi, (B,) + phi.shape[-2:])
+        pt = np.swapaxes(phi_b, 1, 2)
+        q0 = np.zeros((B, m))
+        v0 = np.zeros((B, m))
+        if self.initial == "release":
+            w0 = self._get(theta, "w0")[:, None]
+            if self._fixed:
+                q0 = w0 * self._q_release[None, :]
+            else:
+                # (B, n, 1) right-hand side: numpy >= 2 reads a (B, n) one as a matrix.
+                rhs = np.broadcast_to(fe.tip[:, None], (B, fe.tip.size, 1))
+                try:
+                    shape = np.linalg.solve(self._last_K, rhs)[..., 0]
+                except np.linalg.LinAlgError:  # an exactly singular K: only that set is lost
+                    shape = np.full((B, fe.tip.size), np.nan)
+                    for k in range(B):
+                        try:
+                            shape[k] = np.linalg.solve(self._last_K[k], fe.tip)
+                        except np.linalg.LinAlgError:
+                            continue  # stays NaN: flagged invalid by simulate()
+                shape = shape / (shape @ fe.tip)[:, None]
+                c0 = w0 * shape
+                mt = self._get(theta, "tip_mass")
+                Mc = c0 @ fe.M + mt[:, None] * (c0 @ fe.M_tip)
+                q0 = np.einsum("bmn,bn->bm", pt, Mc)
+        elif self.initial == "impulse":
+            p0 = self._get(theta, "p0")[:, None]
+            if self._fixed:
+                v0 = p0 * self._q_impulse[None, :]
+            else:
+                v0 = p0 * np.einsum("bmn,n->bm", pt, fe.tip)
+        elif self.initial == "state":
+            c0, vv = self._state
+            if self._fixed:
+                q0 = np.broadcast_to(self._phi.T @ fe.M @ c0, (B, m)).copy()
+                v0 = np.broadcast_to(self._phi.T @ fe.M @ vv, (B, m)).copy()
+            else:
+                mt = self._get(theta, "tip_mass")
+                Mc = (fe.M @ c0)[None] + mt[:, None] * (fe.M_tip @ c0)[None]
+                Mv = (fe.M @ vv)[None] + mt[:, None] * (fe.M_tip @ vv)[None]
+                q0 = np.einsum("bmn,bn->bm", pt, Mc)
+                v0 = np.einsum("bmn,bn->bm", pt, Mv)
+        else:  # modes:K — amplitudes at the sensor
+            s = np.einsum("n,bnm->bm", self.sensor, phi_b)
+            k = len(self._init_names) // 2
+            for i in range(k):
+                A = self._get(theta, f"A{i + 1}")
+                Bv = self._get(theta, f"B{i + 1}")
+                q0[:, i] = A / s[:, i]
+                v0[:, i] = Bv * omega[:, i] / s[:, i]
+        return np.concatenate([omega * q0, v0], axis=1)
+
+    def _output(self, omega: np.ndarray, C: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """Output vectors h with y = h·z, shape (B, 2m)."""
+        B, m = omega.shape
+        s = np.einsum("n,...nm->...m", self.sensor, phi)
+        s = np.broadcast_to(s, (B, m))
+        if self.quantity == "displacement":
+            return np.concatenate([s / omega, np.zeros((B, m))], axis=1)
+        if self.quantity == "velocity":
+            return np.concatenate([np.zeros((B, m)), s], axis=1)
+        # q'' = -Ω (Ω q) - C q'
+        return np.concatenate([-s * omega, -np.einsum("bm,bmk->bk", s, C)], axis=1)
+
+    # -- public ------------------------------------------------------------------
+    @property
+    def dt(self) -> float:
+        """Mean sample step in s (the step itself when :attr:`uniform`)."""
+        return self._dt
+
+    def modal_initial_state(
+        self, theta: np.ndarray | dict
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Modal system and initial modal state of admissible parameter sets.
+
+        The hook for models built on the linear one (e.g.
+        :class:`bayesbeam.physics.nonlinear.NonlinearForward`): :meth:`modal_system` plus the
+        initial state those modes start from.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P), or dict
+            Admissible parameter sets (see :meth:`check`), columns :attr:`param_names`.
+
+        Returns
+        -------
+        omega, C, phi : ndarray
+            As returned by :meth:`modal_system`.
+        z0 : ndarray, shape (B, 2m)
+            Initial modal state ``[Ω q0; q0']`` at :attr:`t0` (before any propagation to
+            the first sample).
+        """
+        theta = self._columns(theta)
+        omega, C, phi = self.modal_system(theta)
+        # _initial_state needs the stiffness matrices of this very call (self._last_K).
+        return omega, C, phi, self._initial_state(theta, omega, phi)
+
+    def state_space(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First-order modal system of admissible parameter sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P)
+            Admissible sets (see :meth:`check`).
+
+        Returns
+        -------
+        A : ndarray, shape (B, 2m, 2m)
+            State matrix of z' = A z, z = [Ω q; q'].
+        z0 : ndarray, shape (B, 2m)
+            Initial state at :attr:`t0` (the instant the initial condition holds; equal to
+            ``times[0]`` unless ``t0`` was given).
+        h : ndarray, shape (B, 2m)
+            Output row: the sensor signal is y = h·z (SI units of the quantity).
+        """
+        return self._state_space(self._columns(theta), check=True)
+
+    def _state_space(
+        self, theta: np.ndarray, *, check: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        omega, C, phi, z0 = self.modal_initial_state(theta)
+        h = self._output(omega, C, phi)
+        return propagate.state_matrix(omega, C, check=check), z0, h
+
+    def _lead_state(self, A: np.ndarray, z0: np.ndarray) -> np.ndarray:
+        """Propagate z0 from t0 to the first sample, exactly; NaN rows where that fails."""
+        P = np.full(A.shape, np.nan)
+        fin = np.flatnonzero(np.isfinite(A).all(axis=(1, 2)))
+        try:
+            P[fin] = propagate.expm_batched(A[fin] * self._lead)
+        except propagate.PropagationError:
+            # Some set overflows (absurd parameters): redo one by one so that only those
+            # sets are lost, not the batch.
+            for k in fin:
+                try:
+                    P[k] = propagate.expm_batched(A[k : k + 1] * self._lead)[0]
+                except propagate.PropagationError:
+                    continue  # stays NaN: flagged invalid by the caller
+        return np.einsum("bij,bj->bi", P, z0)
+
+    def simulate(self, theta: np.ndarray | dict) -> Response:
+        """Sensor signal for a batch of parameter sets.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P), or dict of name → array
+            Parameter sets with columns :attr:`param_names` (SI units).
+
+        Returns
+        -------
+        Response
+            ``y`` of shape (B, T) and the ``valid`` mask; invalid sets are never NaN,
+            they are flagged.
+        """
+        theta = self._columns(theta)
+        B = theta.shape[0]
+        y = np.zeros((B, self._t.size))
+        valid = self.check(theta)
+        if not np.any(valid):
+            return Response(y, valid)
+        th = theta[valid]
+        # Admissible but extreme sets can still overflow (e.g. E = 1e300): the propagator
+        # reports them through its mask (return_valid=True); they are flagged here and
+        # never raise for the whole batch (emcee evaluates whole ensembles at once).
+        with np.errstate(all="ignore"):
+            A, z0, h = self._state_space(th, check=False)
+            if self._lead > 0:
+                # The state at the first sample: exact propagation over the lead time.
+                z0 = self._lead_state(A, z0)
+            if self.uniform:
+                yy, ok = propagate.response_uniform(
+                    A, z0, h, self._dt, self._t.size, return_valid=True
+                )
+            else:
+                yy, ok = propagate.response_times(A, z0, h, self._t, return_valid=True)
+        ok &= np.all(np.isfinite(yy), axis=1)
+        yy[~ok] = 0.0
+        idx = np.flatnonzero(valid)
+        valid[idx[~ok]] = False
+        y[idx[ok]] = yy[ok]
+        return Response(y, valid)
+
+    def modes(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
+        """Natural frequencies and damping ratios of the underdamped modes of one set.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (P,) or dict
+
+        Returns
+        -------
+        frequencies_hz : ndarray, shape (k,)
+            |λ|/2π of each underdamped eigenvalue λ (Im λ > 0), sorted by |λ|.
+        damping_ratios : ndarray, shape (k,)
+            −Re λ / |λ|.
+        """
+        theta = self._columns(theta)[:1]
+        if not self.check(theta)[0]:
+            pairs = zip(self.param_names, theta[0], strict=True)
+            values = ", ".join(f"{n}={v:g}" for n, v in pairs)
+            raise ForwardError(
+                f"parameters outside their admissible range ({values}): E, b and a root "
+                "spring must be finite and > 0, damping coefficients and tip mass >= 0, "
+                "stiffness_gradient in (-2, 2)"
+            )
+        omega, C, _ = self.modal_system(theta)
+        lam = propagate.eigenvalues(propagate.state_matrix(omega, C))[0]
+        lam = lam[lam.imag > 1e-9 * np.abs(lam)]
+        order = np.argsort(np.abs(lam))
+        lam = lam[order]
+        return np.abs(lam) / (2 * np.pi), -lam.real / np.abs(lam)
+
+
+def modal_properties(
+    beam: Beam, model: str | Model, params: dict[str, float], *, n_elements: int = 16
+) -> tuple[np.ndarray, np.ndarray]:
+    """Natural frequencies (Hz) and modal damping ratios of a damped beam.
+
+    Parameters
+    ----------
+    beam : Beam
+    model : str or Model
+    params : dict
+        Physical parameters of the model (SI); E defaults to ``beam.E``.
+    n_elements : int
+
+    Returns
+    -------
+    frequencies_hz, damping_ratios : ndarray, shape (k,)
+        See :meth:`Forward.modes`.
+    """
+    fwd = Forward(beam, model, np.array([0.0, 1.0]), n_elements=n_elements)
+    p = {"w0": 0.0, **params}
+    if "E" not in p:
+        if beam.E is None:
+            raise ForwardError("give E (Pa): the beam description has no nominal E")
+        p["E"] = beam.E
+    missing = [n for n in fwd.model.physical_params if n not in p]
+    if missing:
+        raise ForwardError(
+            f"model {fwd.model.name!r} needs parameters {missing} (SI units); "
+            "give them, e.g. --set gamma=0.01"
+        )
+    # A misspelt or foreign name (e.g. c_d for 'viscous') would otherwise be ignored silently.
+    extra = sorted(set(p) - set(fwd.param_names))
+    if extra:
+        raise ForwardError(
+            f"{extra} are not parameters of model {fwd.model.name!r}; it takes "
+            f"{list(fwd.model.physical_params)} (SI units)"
+        )
+    return fwd.modes(p)

@@ -1,0 +1,66 @@
+"""Statistics that know nothing of beams.
+
+Statistics that know nothing of beams: prior families and prior sets, Gaussian
+likelihoods (i.i.d., AR(1)), emcee sampling with convergence checks and checkpoints,
+bridge-sampling / Laplace evidence, information criteria, evidence ranking.
+
+Layer: imports only :mod:`bayesbeam._util` (independent of :mod:`bayesbeam.physics`).
+"""
+
+from bayesbeam._util import lazy_exports
+
+_EXPORTS = {
+    "aic": ".criteria",
+    "ar1_loglik": ".likelihood",
+    "ar1_pointwise": ".likelihood",
+    "autocorr_time": ".convergence",
+    "bic": ".criteria",
+    "bridge_sampling": ".evidence",
+    "burn_in": ".convergence",
+    "Chain": ".sampling",
+    "Check": ".convergence",
+    "check_convergence": ".convergence",
+    "CheckpointBackend": ".checkpoint",
+    "CriteriaError": ".criteria",
+    "DEFAULT_THRESHOLD": ".ranking",
+    "effective_sample_size": ".evidence",
+    "elpd_difference": ".criteria",
+    "ess_rhat": ".convergence",
+    "Evidence": ".evidence",
+    "EvidenceError": ".evidence",
+    "EvidenceWarning": ".evidence",
+    "failed_criteria": ".convergence",
+    "group_loglik": ".criteria",
+    "HalfNormal": ".families",
+    "HessianNotNegativeDefiniteError": ".evidence",
+    "iid_loglik": ".likelihood",
+    "iid_pointwise": ".likelihood",
+    "init_walkers": ".sampling",
+    "laplace_evidence": ".evidence",
+    "LikelihoodError": ".likelihood",
+    "LogNormal": ".families",
+    "logo": ".criteria",
+    "LogUniform": ".families",
+    "LOO": ".criteria",
+    "loo": ".criteria",
+    "make_log_prob": ".sampling",
+    "Normal": ".families",
+    "NotConvergedWarning": ".sampling",
+    "open_checkpoint": ".checkpoint",
+    "ParetoKWarning": ".criteria",
+    "Prior": ".families",
+    "prior_from_dict": ".families",
+    "PriorError": ".families",
+    "PriorSet": ".priors",
+    "read_meta": ".checkpoint",
+    "run_emcee": ".sampling",
+    "SamplingError": ".checkpoint",
+    "Uniform": ".families",
+    "WAIC": ".criteria",
+    "waic": ".criteria",
+    "WAICWarning": ".criteria",
+    "write_meta": ".checkpoint",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

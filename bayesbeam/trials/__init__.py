@@ -1,0 +1,49 @@
+"""Measured and simulated records.
+
+Measured or simulated records: the :class:`Trial` record, trial files, public real-data
+loaders, synthetic trials, and modal identification from a record's samples.
+
+Layer: above :mod:`bayesbeam.physics` and :mod:`bayesbeam.stats`.
+"""
+
+from bayesbeam._util import lazy_exports
+
+_EXPORTS = {
+    "autocorrelation": ".modal_id",
+    "band_modal_estimate": ".modal_id",
+    "damped_sinusoids": ".modal_id",
+    "decay_rate_vs_amplitude": ".modal_id",
+    "DecayAmplitude": ".modal_id",
+    "DEFAULT_ROOT": ".realdata",
+    "ENES": ".realdata",
+    "enes_beam": ".realdata",
+    "FORMAT_VERSION": ".io",
+    "HRSHM": ".realdata",
+    "hrshm_beam": ".realdata",
+    "list_real_datasets": ".realdata",
+    "ljung_box": ".modal_id",
+    "load_enes": ".realdata",
+    "load_hrshm": ".realdata",
+    "ModalEstimate": ".modal_id",
+    "periodogram": ".modal_id",
+    "read_trial": ".io",
+    "RealDataError": ".realdata",
+    "RealRecord": ".realdata",
+    "resolve_root": ".realdata",
+    "SignatureError": ".modal_id",
+    "simulate_signal": ".synthetic",
+    "simulate_trial": ".synthetic",
+    "spectral_peak": ".modal_id",
+    "STANDARD_GRAVITY": ".trial",
+    "stationary_ar1": ".synthetic",
+    "Trial": ".trial",
+    "TrialError": ".trial",
+    "uniform_grid": ".modal_id",
+    "UNIFORM_RTOL": ".trial",
+    "unit_factor": ".trial",
+    "UNITS": ".trial",
+    "write_trial": ".io",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,0 +1,409 @@
+"""Trial files: read and write a trial as a TOML file plus the CSV file it names.
+
+A trial is stored as a small TOML file that points at a CSV file (format documented
+in ``data/README.md``)::
+
+    name = "beam1-trial1"
+
+    [signal]
+    file = "beam1-trial1.csv"        # relative to this TOML file
+    time_column = "time_s"
+    value_column = "displacement_mm"
+    quantity = "displacement"        # displacement | velocity | acceleration
+    unit = "mm"                      # m, mm, m/s, mm/s, m/s^2, g (g = 9.80665 m/s^2)
+    sensor_position = 0.3048         # m from the clamp
+
+    [beam]                           # read with Beam.from_dict (SI units)
+    length = 0.3048
+    width = 0.127
+    thickness = 0.00072
+    mass = 0.021
+
+    [initial]                        # optional
+    tip_deflection = 0.005           # m
+    note = "released from a static tip load"
+
+    [meta]                           # optional, free-form
+
+Values are converted to SI units when read, so a :class:`~bayesbeam.trials.trial.Trial`
+always holds SI values. The in-memory record lives in :mod:`bayesbeam.trials.trial`, which
+also re-exports :func:`read_trial` and :func:`write_trial` (their historical home).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayesbeam.physics.beam import QUANTITIES, Beam, BeamError
+from bayesbeam.trials.trial import _SI_UNIT, Trial, TrialError, unit_factor
+
+__all__ = ["FORMAT_VERSION", "read_trial", "write_trial"]
+
+_SIGNAL_REQUIRED = (
+    "file",
+    "time_column",
+    "value_column",
+    "quantity",
+    "unit",
+    "sensor_position",
+)
+_SIGNAL_OPTIONAL = ("t0", "delimiter")
+_TOP_KEYS = ("name", "format_version", "signal", "beam", "initial", "meta")
+FORMAT_VERSION = 1
+
+
+# --------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------
+def _file_sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _read_csv(
+    csv_path: Path, time_column: str, value_column: str, delimiter: str
+) -> tuple[np.ndarray, np.ndarray, str]:
+    try:
+        raw = csv_path.read_bytes()
+    except FileNotFoundError:
+        raise TrialError(f"signal file {csv_path} not found") from None
+    text = raw.decode("utf-8-sig")
+    lines = text.splitlines()
+    header_at = next(
+        (i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")),
+        None,
+    )
+    if header_at is None:
+        raise TrialError(f"{csv_path} is empty; it needs a header line with column names")
+    names = [c.strip().strip('"').strip("'") for c in lines[header_at].split(delimiter)]
+    cols = []
+    for role, col in (("time_column", time_column), ("value_column", value_column)):
+        if col not in names:
+            raise TrialError(
+                f"{role} {col!r} is not a column of {csv_path}; available columns: {names}"
+            )
+        cols.append(names.index(col))
+    body = lines[header_at + 1 :]
+    if not any(ln.strip() and not ln.lstrip().startswith("#") for ln in body):
+        raise TrialError(f"{csv_path} has a header but no data rows")
+    try:
+        data = np.loadtxt(body, delimiter=delimiter, usecols=cols, ndmin=2, comments="#")
+    except ValueError as err:
+        raise TrialError(
+            f"could not read numbers from {csv_path}: {err}. Every data row needs a number "
+            f"in columns {time_column!r} and {value_column!r} (delimiter {delimiter!r})"
+        ) from None
+    return data[:, 0], data[:, 1], _file_sha256(raw)
+
+
+def _need_str(table: Mapping[str, Any], key: str, where: str) -> str:
+    v = table[key]
+    if not isinstance(v, str) or not v:
+        raise TrialError(f"{where} {key} must be a non-empty string, got {v!r}")
+    return v
+
+
+def read_trial(path: str | Path) -> Trial:
+    """Read a trial from its TOML file and the CSV file it names.
+
+    Parameters
+    ----------
+    path : str or Path
+        The trial's TOML file (format in ``data/README.md`` and this module's
+        docstring).
+
+    Returns
+    -------
+    Trial
+        Values converted to SI units; ``source`` holds the CSV path, its SHA-256 and
+        the unit converted from.
+
+    Raises
+    ------
+    TrialError
+        For a missing or invalid file, missing or unknown keys, a missing column, an
+        unknown unit, NaN/inf data, non-increasing times, a sensor beyond the free
+        end, or an invalid beam; the message says how to fix it.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            doc = tomllib.load(fh)
+    except FileNotFoundError:
+        raise TrialError(f"trial file {path} not found") from None
+    except tomllib.TOMLDecodeError as err:
+        raise TrialError(f"{path} is not valid TOML: {err}") from None
+    unknown = sorted(set(doc) - set(_TOP_KEYS))
+    if unknown:
+        raise TrialError(f"{path}: unknown top-level keys {unknown}; allowed: {list(_TOP_KEYS)}")
+    signal = doc.get("signal")
+    if not isinstance(signal, dict):
+        raise TrialError(
+            f"{path} needs a [signal] table with keys {list(_SIGNAL_REQUIRED)} (see data/README.md)"
+        )
+    missing = [k for k in _SIGNAL_REQUIRED if k not in signal]
+    if missing:
+        raise TrialError(
+            f"{path}: [signal] is missing {missing} (required: {list(_SIGNAL_REQUIRED)})"
+        )
+    extra = sorted(set(signal) - set(_SIGNAL_REQUIRED) - set(_SIGNAL_OPTIONAL))
+    if extra:
+        raise TrialError(
+            f"{path}: unknown [signal] keys {extra}; allowed: "
+            f"{list(_SIGNAL_REQUIRED + _SIGNAL_OPTIONAL)}"
+        )
+    where = f"{path}: [signal]"
+    file = _need_str(signal, "file", where)
+    time_column = _need_str(signal, "time_column", where)
+    value_column = _need_str(signal, "value_column", where)
+    quantity = _need_str(signal, "quantity", where)
+    if quantity not in QUANTITIES:
+        raise TrialError(f"{where} quantity must be one of {QUANTITIES}, got {quantity!r}")
+    unit = _need_str(signal, "unit", where)
+    try:
+        factor = unit_factor(unit, quantity)
+    except TrialError as err:
+        raise TrialError(f"{where} {err}") from None
+    delimiter = signal.get("delimiter", ",")
+    if not isinstance(delimiter, str) or len(delimiter) != 1:
+        raise TrialError(f"{where} delimiter must be a single character, got {delimiter!r}")
+    xs = signal["sensor_position"]
+    if (
+        isinstance(xs, bool)
+        or not isinstance(xs, (int, float))
+        or not (math.isfinite(xs) and xs > 0)
+    ):
+        raise TrialError(f"{where} sensor_position must be a positive number in m, got {xs!r}")
+
+    beam_d = doc.get("beam")
+    if not isinstance(beam_d, dict):
+        raise TrialError(
+            f"{path} needs a [beam] table (length, width, thickness, mass, ...; SI units)"
+        )
+    for key in ("sensor_position", "quantity"):
+        if key in beam_d:
+            raise TrialError(f"{path}: give {key} in [signal] only, not in [beam]")
+    length = beam_d.get("length")
+    if isinstance(length, (int, float)) and not isinstance(length, bool) and xs > length:
+        raise TrialError(
+            f"{where} sensor_position {xs} m lies beyond the free end of the beam (length "
+            f"{length} m); give the distance from the clamp in metres"
+        )
+    try:
+        beam = Beam.from_dict({**beam_d, "sensor_position": float(xs), "quantity": quantity})
+    except BeamError as err:
+        raise TrialError(f"{path}: [beam]: {err}") from None
+
+    initial = doc.get("initial", {})
+    meta = doc.get("meta", {})
+    for key, tab in (("initial", initial), ("meta", meta)):
+        if not isinstance(tab, dict):
+            raise TrialError(f"{path}: {key} must be a table ([{key}]), got {tab!r}")
+    name = doc.get("name", path.stem)
+    if not isinstance(name, str):
+        raise TrialError(f"{path}: name must be a string, got {name!r}")
+    t0 = signal.get("t0")
+
+    csv_path = path.parent / file
+    if not csv_path.is_file():
+        raise TrialError(
+            f"signal file {csv_path} not found ([signal] file = {file!r} in {path} is "
+            "resolved relative to the TOML file's folder)"
+        )
+    times, raw, digest = _read_csv(csv_path, time_column, value_column, delimiter)
+    source = {
+        "file": str(csv_path.resolve()),
+        "sha256": digest,
+        "unit": unit,
+        "trial_file": str(path.resolve()),
+        "processing": [],
+    }
+    try:
+        return Trial(
+            times=times,
+            values=raw * factor,
+            quantity=quantity,
+            beam=beam,
+            name=name,
+            source=source,
+            t0=t0,
+            initial=initial,
+            meta=meta,
+        )
+    except TrialError as err:
+        raise TrialError(f"{csv_path} (columns {time_column!r}, {value_column!r}): {err}") from None
+
+
+# --------------------------------------------------------------------------------------
+# Writing (tomllib reads TOML but has no writer; this is a small one for our tables)
+# --------------------------------------------------------------------------------------
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+_ESCAPES = {
+    '"': '\\"',
+    "\\": "\\\\",
+    "\b": "\\b",
+    "\t": "\\t",
+    "\n": "\\n",
+    "\f": "\\f",
+    "\r": "\\r",
+}
+
+
+def _toml_str(s: str) -> str:
+    out = []
+    for ch in s:
+        if ch in _ESCAPES:
+            out.append(_ESCAPES[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _toml_key(k: Any) -> str:
+    if not isinstance(k, str):
+        raise TrialError(f"TOML keys must be strings, got {k!r}")
+    return k if _BARE_KEY.fullmatch(k) else _toml_str(k)
+
+
+def _is_table(v: Any) -> bool:
+    return isinstance(v, Mapping)
+
+
+def _is_table_array(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and len(v) > 0 and all(isinstance(x, Mapping) for x in v)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)  # shortest round-trip repr; 'inf', 'nan', '1e-05' are valid TOML
+    if isinstance(v, str):
+        return _toml_str(v)
+    if isinstance(v, Path):
+        return _toml_str(str(v))
+    if isinstance(v, (list, tuple, np.ndarray)):
+        items = list(v)
+        if any(isinstance(x, Mapping) for x in items):
+            raise TrialError("a TOML array may not mix tables and values")
+        return "[" + ", ".join(_toml_value(x) for x in items) + "]"
+    raise TrialError(f"cannot write {type(v).__name__} value {v!r} to TOML")
+
+
+def _emit(lines: list[str], prefix: tuple[str, ...], table: Mapping[str, Any]) -> None:
+    for k, v in table.items():
+        if not _is_table(v) and not _is_table_array(v):
+            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
+    for k, v in table.items():
+        name = ".".join(_toml_key(p) for p in (*prefix, k))
+        if _is_table(v):
+            lines += ["", f"[{name}]"]
+            _emit(lines, (*prefix, k), v)
+        elif _is_table_array(v):
+            for item in v:
+                lines += ["", f"[[{name}]]"]
+                _emit(lines, (*prefix, k), item)
+
+
+def _toml_dumps(doc: Mapping[str, Any]) -> str:
+    """Serialise nested mappings of str/int/float/bool/lists to TOML text."""
+    lines: list[str] = []
+    _emit(lines, (), doc)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _column_name(quantity: str, unit: str) -> str:
+    return f"{quantity}_{unit}"
+
+
+def write_trial(trial: Trial, path: str | Path, *, unit: str | None = None) -> Path:
+    """Write a trial as a TOML file plus a CSV file beside it.
+
+    The CSV gets the TOML's name with suffix ``.csv`` and columns ``time_s`` and
+    ``<quantity>_<unit>``; numbers are written with 17 significant digits, so SI
+    values read back bit for bit (other units to within a rounding of the
+    conversion factor). If the trial came from a file, ``[meta] derived_from``
+    records that file, its SHA-256 and the processing done since.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial to write.
+    path : str or Path
+        The TOML file to write (suffix ``.toml``); its folder is created if needed.
+    unit : str, optional
+        Unit of the written values (default: the SI unit of the quantity).
+
+    Returns
+    -------
+    Path
+        The TOML file written.
+
+    Raises
+    ------
+    TrialError
+        For a bad suffix, a unit that does not fit the quantity, or metadata that
+        cannot be written to TOML.
+    """
+    path = Path(path)
+    if path.suffix != ".toml":
+        raise TrialError(f"trial file name must end in .toml, got {path.name!r}")
+    unit = _SI_UNIT[trial.quantity] if unit is None else unit
+    factor = unit_factor(unit, trial.quantity)
+    csv_path = path.with_suffix(".csv")
+    value_column = _column_name(trial.quantity, unit)
+
+    beam = trial.beam.to_dict()
+    beam.pop("sensor_position", None)
+    beam.pop("quantity", None)
+    meta = dict(trial.meta)
+    if trial.source.get("file"):
+        meta["derived_from"] = {
+            "file": str(trial.source["file"]),
+            "sha256": str(trial.source.get("sha256", "")),
+            "unit": str(trial.source.get("unit", "")),
+            "processing": [str(s) for s in trial.source.get("processing", [])],
+        }
+    doc: dict[str, Any] = {
+        "name": trial.name,
+        "format_version": FORMAT_VERSION,
+        "signal": {
+            "file": csv_path.name,
+            "time_column": "time_s",
+            "value_column": value_column,
+            "quantity": trial.quantity,
+            "unit": unit,
+            "sensor_position": trial.sensor_position,
+            "t0": trial.t0,
+        },
+        "beam": beam,
+    }
+    if trial.initial:
+        doc["initial"] = dict(trial.initial)
+    if meta:
+        doc["meta"] = meta
+    text = (
+        "# bayesbeam trial (format: data/README.md). Values in the CSV are in "
+        f"{unit}; beam in SI units (mass {trial.beam.beam_mass!r} kg).\n" + _toml_dumps(doc)
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    values = trial.values if factor == 1.0 else trial.values / factor
+    data = np.column_stack([trial.times, values])
+    with csv_path.open("w", encoding="utf-8", newline="\n") as fh:
+        fh.write(f"time_s,{value_column}\n")
+        np.savetxt(fh, data, delimiter=",", fmt="%.17g")
+    path.write_text(text, encoding="utf-8")
+    return path

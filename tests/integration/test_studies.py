@@ -1,0 +1,149 @@
+"""Shipped data (studies/make_data.py), the source-replication study and the notebook."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bayesbeam.trials.io import read_trial
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "data"
+STUDIES = ROOT / "studies"
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(f"_study_{name}", STUDIES / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def make_data():
+    return _load("make_data")
+
+
+def _sha(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+def test_make_data_reproduces_the_shipped_files(make_data, tmp_path):
+    # TOML files (beam, truth, settings) come back byte for byte. The CSV values are
+    # written with 6 decimals; the forward model's eigensolver differs between
+    # numpy/scipy/LAPACK builds at ~1e-8 relative (phase over 5 s), which flips the
+    # last written digit of some samples: each value must agree to one unit in that
+    # digit (1e-6, plus 1e-12 for the decimal parsing), the header and time column exactly.
+    written = make_data.main(tmp_path, verbose=False)
+    assert len(written) == 31  # 15 TOML + 15 CSV + truth.toml
+    for p in written:
+        ref = DATA / p.name
+        if p.suffix != ".csv":
+            assert _sha(p) == _sha(ref), f"{p.name} differs from data/{p.name}"
+            continue
+        new, old = p.read_text().splitlines(), ref.read_text().splitlines()
+        assert new[0] == old[0] and len(new) == len(old), p.name
+        a = np.loadtxt(p, delimiter=",", skiprows=1)
+        b = np.loadtxt(ref, delimiter=",", skiprows=1)
+        np.testing.assert_array_equal(a[:, 0], b[:, 0], err_msg=p.name)
+        np.testing.assert_allclose(a[:, 1], b[:, 1], rtol=0, atol=1e-6 + 1e-12, err_msg=p.name)
+
+
+def test_shipped_data_is_small_and_licensed():
+    files = [p for p in DATA.iterdir() if p.is_file()]
+    assert sum(p.stat().st_size for p in files) < 1_000_000
+    readme = (DATA / "README.md").read_text(encoding="utf-8")
+    assert "CC0" in readme and "studies/make_data.py" in readme
+
+
+def test_trials_describe_what_a_user_knows(make_data):
+    truth = tomllib.loads((DATA / "truth.toml").read_text())
+    for spec in make_data.BEAMS:
+        for j in range(5):
+            path = DATA / f"{spec.name}-trial{j + 1}.toml"
+            doc = tomllib.loads(path.read_text())
+            # Hidden truths are not in the trial description.
+            for hidden in ("E", "root_spring"):
+                assert hidden not in doc["beam"], (path.name, hidden)
+            t = read_trial(path)
+            assert len(t) == 1280 and t.is_uniform and t.dt == pytest.approx(1 / 256, rel=1e-12)
+            b = t.beam
+            assert (b.length, b.width, b.thickness) == (0.3048, 0.127, spec.thickness)
+            assert b.beam_mass == pytest.approx(spec.mass, rel=1e-12)
+            assert b.tip_mass == 0.0004 and len(b.segments) == 1
+            assert b.root_spring is None and b.E is None
+            # The nominal release deflection is the true one to the nearest mm.
+            w_true = truth[spec.name]["tip_deflections"][j]
+            assert abs(t.initial["tip_deflection"] - w_true) <= 0.0005 + 1e-12
+            # The record starts at the release deflection (plus noise of ~11 µm sd).
+            assert abs(t.values[0] - w_true) < 6e-5
+
+
+def test_first_frequency_in_the_data_matches_the_generating_beam(make_data):
+    # Independent check of the generator: the spectral peak of every record (numpy FFT,
+    # 64x zero padding, Hann window) against the first natural frequency of the true beam.
+    # Tolerance 0.03 Hz: padded bin 0.003 Hz; the damped peak of a decaying record sits
+    # within ~zeta^2 f1 (< 1e-3 Hz) of the natural frequency; Hann leakage from mode 2
+    # (2.5 % amplitude, > 30 Hz away) shifts it by far less.
+    truth = tomllib.loads((DATA / "truth.toml").read_text())
+    for spec in make_data.BEAMS:
+        f1 = truth[spec.name]["frequencies_hz"][0]
+        for j in range(5):
+            t = read_trial(DATA / f"{spec.name}-trial{j + 1}.toml")
+            y = (t.values - t.values.mean()) * np.hanning(len(t))
+            n = 64 * len(t)
+            spec_abs = np.abs(np.fft.rfft(y, n))
+            f = np.fft.rfftfreq(n, t.dt)
+            band = (f > 2) & (f < 40)
+            peak = f[band][np.argmax(spec_abs[band])]
+            assert abs(peak - f1) < 0.03, (spec.name, j, peak, f1)
+
+
+def test_truth_matches_the_generator(make_data):
+    truth = tomllib.loads((DATA / "truth.toml").read_text())
+    for spec in make_data.BEAMS:
+        t = truth[spec.name]
+        assert t["E"] == spec.E and t["root_spring"] == spec.root_spring
+        assert t["damping"] == spec.damping and t["model"] == spec.model
+        # Clamp compliance lowers f1 by "several percent" (physics.md §3).
+        assert -0.06 < t["f1_shift_from_clamp"] < -0.02
+    assert truth["noise"]["ar1_rho"] == make_data.NOISE_AR_RHO
+
+
+@pytest.mark.slow
+def test_source_replication_runs_at_a_small_size(tmp_path):
+    study = _load("source_replication")
+    res = study.main(small=True, outdir=tmp_path, progress=False)
+    md = res["markdown"]
+    assert res["path"].is_file() and (tmp_path / "report.html").is_file()
+    assert "Conclusions compared with the source" in md and "beam2-trial1" in md
+    assert "| viscous+kv |" in md
+    rows = res["replication"].rows
+    assert {r["model"] for r in rows} == {"viscous", "viscous+kv"}
+    assert all(np.isfinite(r["log_z"]) for r in rows)
+
+
+@pytest.mark.slow
+def test_notebook_executes_with_the_venv_kernel(tmp_path):
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    nb = nbformat.read(STUDIES / "model_comparison.ipynb", as_version=4)
+    client = nbclient.NotebookClient(nb, kernel_name="python3", timeout=600,
+                                     resources={"metadata": {"path": str(tmp_path)}})
+    client.execute()
+    # The kernel is this interpreter (jupyter_client maps the spec's "python" to
+    # sys.executable), so the notebook saw this environment's bayesbeam.
+    first = "".join(o.get("text", "") for o in nb.cells[1].outputs)
+    assert f"Python: {sys.executable}" in first
+    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
+              if o.output_type == "error"]
+    assert not errors
+    last = "".join(o.get("text", "") for o in nb.cells[-1].outputs)
+    assert "report.html" in last
