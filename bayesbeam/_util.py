@@ -10,9 +10,14 @@
 * :func:`json_default`: the ``default=`` hook of :func:`json.dumps` for numpy scalars
   and arrays, paths, mappings, sets and tuples (used by :mod:`bayesbeam.inference.results` and
   :mod:`bayesbeam.jobs.executor`);
-* :func:`finite_json`: a copy of a record with non-finite floats replaced by ``None``
-  so that it can be written as strict JSON (used by :mod:`bayesbeam.jobs.executor` and
-  :mod:`bayesbeam.jobs.demo`).
+* :func:`finite_or_none`: one number as strict JSON (``None`` when not finite), and
+  :func:`finite_json`: a copy of a whole record with non-finite floats replaced by
+  ``None`` so that it can be written as strict JSON (the records of
+  :mod:`bayesbeam.inference.results`, :mod:`bayesbeam.comparison`,
+  :mod:`bayesbeam.diagnosis` and :mod:`bayesbeam.jobs`);
+* :func:`file_sha256`: the SHA-256 of a file's bytes (provenance and cache keys);
+* :func:`read_toml`: a TOML file as a dict, with an error that names the file, says
+  what is wrong and how to fix it, in the caller's error class.
 
 Only the standard library is imported at import time (numpy when a value needs it).
 This module imports nothing from bayesbeam: every layer may use it.
@@ -21,14 +26,24 @@ This module imports nothing from bayesbeam: every layer may use it.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib
 import importlib.metadata
 import math
+import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["distribution_version", "finite_json", "json_default", "lazy_exports"]
+__all__ = [
+    "distribution_version",
+    "file_sha256",
+    "finite_json",
+    "finite_or_none",
+    "json_default",
+    "lazy_exports",
+    "read_toml",
+]
 
 
 def distribution_version(dist: str, missing: str = "0+unknown") -> str:
@@ -119,16 +134,37 @@ def json_default(obj: Any) -> Any:
     raise TypeError(f"cannot write {type(obj).__name__} to JSON: {obj!r}")
 
 
+def finite_or_none(x: Any) -> float | None:
+    """One number for strict JSON: a float, or ``None`` when it is not finite.
+
+    Parameters
+    ----------
+    x : float, int, numpy scalar or None
+        The number (``None`` stays ``None``: a value that was never computed).
+
+    Returns
+    -------
+    float or None
+        ``float(x)``, or ``None`` for NaN, ±inf and ``None``.
+    """
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
 def finite_json(obj: Any) -> Any:
     """Copy ``obj`` for strict JSON: non-finite floats become ``None``.
 
-    Mapping keys become ``str``, tuples lists, dataclass instances dicts and paths
-    ``str``; other values are kept as they are.
+    Mapping keys become ``str``, tuples and numpy arrays lists, numpy scalars Python
+    scalars, dataclass instances dicts and paths ``str``; other values are kept as
+    they are.
 
     Parameters
     ----------
     obj : object
-        A record made of mappings, lists, tuples, dataclasses, paths and scalars.
+        A record made of mappings, lists, tuples, numpy arrays, dataclasses, paths and
+        scalars.
 
     Returns
     -------
@@ -136,7 +172,11 @@ def finite_json(obj: Any) -> Any:
         The converted copy.
     """
     if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
+        return finite_or_none(obj)
+    # A numpy value can only exist once numpy is imported; this module does not import it.
+    np = sys.modules.get("numpy")
+    if np is not None and isinstance(obj, np.ndarray | np.generic):
+        return finite_json(obj.tolist())
     if isinstance(obj, Mapping):
         return {str(k): finite_json(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -146,3 +186,65 @@ def finite_json(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (provenance records and cache keys).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    str
+        The digest, 64 lowercase hex digits.
+
+    Raises
+    ------
+    OSError
+        When the file cannot be read (the callers check that it exists first).
+    """
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def read_toml(
+    path: str | Path, *, what: str = "TOML file", error: type[ValueError] = ValueError
+) -> dict[str, Any]:
+    """Read a TOML file into a dict; a missing, unreadable or invalid file raises ``error``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What the file is, for the message (``"trial file"``, ``"prior file"``, ...).
+    error : type of ValueError
+        The caller's error class (each command maps its own class to an exit status).
+
+    Returns
+    -------
+    dict
+        The TOML document.
+
+    Raises
+    ------
+    ValueError
+        ``error``, with a one-line message that names the file, says what is wrong
+        and how to fix it.
+    """
+    import tomllib
+
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise error(f"cannot read {what} {path}: not found; check the path") from None
+    except tomllib.TOMLDecodeError as err:
+        raise error(
+            f"{what} {path} is not valid TOML ({err}); fix the syntax there (https://toml.io)"
+        ) from None
+    except OSError as err:
+        raise error(f"cannot read {what} {path}: {err.strerror or err}") from None

@@ -31,6 +31,7 @@ import numpy as np
 
 from bayesbeam.comparison.compare import compare, compare_scores
 from bayesbeam.inference.problem import BETA1
+from bayesbeam.inference.settings import FIT_DEFAULTS
 from bayesbeam.jobs.bench import bench_beam
 from bayesbeam.trials.io import write_trial
 from bayesbeam.trials.synthetic import simulate_trial
@@ -66,9 +67,9 @@ def main(argv: list[str] | None = None) -> dict:
         ``log_evidence_err``, ``seconds``, ``n_calls``.
     """
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--target-ess", type=float, default=1000.0)
-    ap.add_argument("--max-steps", type=int, default=20_000)
-    ap.add_argument("--elements", type=int, default=16)
+    ap.add_argument("--target-ess", type=float, default=FIT_DEFAULTS.target_ess)
+    ap.add_argument("--max-steps", type=int, default=FIT_DEFAULTS.max_steps)
+    ap.add_argument("--elements", type=int, default=FIT_DEFAULTS.n_elements)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="processes for the fits")
     args = ap.parse_args(argv)
@@ -80,7 +81,8 @@ def main(argv: list[str] | None = None) -> dict:
         cmp = compare(trial, MODELS, seed=args.seed, n_elements=args.elements,
                       target_ess=args.target_ess, max_steps=args.max_steps)
     else:
-        from bayesbeam.jobs.executor import fit_tasks, load_score, run_fits
+        from bayesbeam.jobs.executor import load_score, run_fits
+        from bayesbeam.jobs.tasks import fit_tasks
 
         with tempfile.TemporaryDirectory(prefix="bench-compare-") as tmp:
             path = write_trial(trial, Path(tmp) / "trial.toml")

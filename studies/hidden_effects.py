@@ -56,7 +56,8 @@ from bayesbeam.diagnosis.diagnose import CATALOGUE, diagnose
 from bayesbeam.inference.problem import BETA1
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.nonlinear import NonlinearForward, amplitude_damping_scales
-from bayesbeam.trials.synthetic import simulate_signal, stationary_ar1
+from bayesbeam.stats.likelihood import stationary_ar1
+from bayesbeam.trials.synthetic import simulate_signal
 from bayesbeam.trials.trial import Trial
 
 L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9

@@ -70,7 +70,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bayesbeam.diagnosis.diagnose import describe_signatures, diagnose
+from bayesbeam.diagnosis.diagnose import diagnose
+from bayesbeam.diagnosis.records import describe_signatures
 from bayesbeam.inference.problem import first_frequency
 from bayesbeam.trials.realdata import load_enes, load_hrshm
 
@@ -159,7 +160,7 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
     Returns
     -------
     dict
-        ``results`` (record → :meth:`bayesbeam.diagnosis.diagnose.Diagnosis.to_json_dict`),
+        ``results`` (record → :meth:`bayesbeam.diagnosis.records.Diagnosis.to_json_dict`),
         ``markdown`` and ``paths``.
     """
     cfg = SMALL if small else FULL

@@ -31,7 +31,7 @@ from pathlib import Path
 from bayesbeam.jobs.demo import MODELS, find_data, run_replication
 from bayesbeam.report.html import write_report
 
-#: Full study: the package defaults (bayesbeam.jobs.executor.DEFAULT_SETTINGS), plus plots.
+#: Full study: the package defaults (bayesbeam.jobs.tasks.DEFAULT_SETTINGS), plus plots.
 FULL = {"plots": True}
 #: Small: seconds per fit (for tests); not converged posteriors.
 SMALL = {"n_elements": 6, "nwalkers": 16, "target_ess": 10.0, "max_steps": 60, "min_steps": 20,

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from bayesbeam.cli import options as opts
+from bayesbeam.inference.settings import FIT_DEFAULTS
 
 __all__ = ["parse_prior_odds", "register", "run"]
 
@@ -106,9 +107,10 @@ def register(subparsers: Any) -> None:
                     help=f"comma-separated model names (default {DEFAULT_MODELS})")
     opts.add_outdir_seed_options(sp)
     opts.add_elements_option(sp, help="Hermite elements")
-    sp.add_argument("--target-ess", type=float, default=1000.0,
+    sp.add_argument("--target-ess", type=float, default=FIT_DEFAULTS.target_ess,
                     help="effective sample size per parameter to stop at")
-    sp.add_argument("--max-steps", type=int, default=20_000, help="sampler step budget")
+    sp.add_argument("--max-steps", type=int, default=FIT_DEFAULTS.max_steps,
+                    help="sampler step budget")
     sp.add_argument("--prior-odds", default=None, metavar="ODDS",
                     help="prior odds of the models: '1,1,2' in --models order, or "
                          "'viscous=2,viscous+kv=1' (default equal)")

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from bayesbeam.cli import options as opts
+from bayesbeam.inference.settings import DIAGNOSIS_DEFAULTS
 
 __all__ = ["DiagnoseCLIError", "register", "run"]
 
@@ -75,10 +76,11 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--priors", type=Path, default=None,
                     help="TOML file with [priors.NAME] tables, applied to every model "
                          "that has the parameter")
-    sp.add_argument("--max-steps", type=int, default=2000,
-                    help="emcee steps per sampled model (default 2000)")
-    sp.add_argument("--target-ess", type=float, default=300.0,
-                    help="bulk ESS target per sampled model (default 300)")
+    sp.add_argument("--max-steps", type=int, default=DIAGNOSIS_DEFAULTS.max_steps,
+                    help=f"emcee steps per sampled model (default {DIAGNOSIS_DEFAULTS.max_steps})")
+    sp.add_argument("--target-ess", type=float, default=DIAGNOSIS_DEFAULTS.target_ess,
+                    help=f"bulk ESS target per sampled model "
+                         f"(default {DIAGNOSIS_DEFAULTS.target_ess:g})")
     opts.add_json_option(sp, help="print the record as JSON")
     sp.set_defaults(func=run)
 

@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from bayesbeam.cli import options as opts
+from bayesbeam.inference.settings import FIT_DEFAULTS
 
 __all__ = ["FitCLIError", "register", "run"]
 
@@ -94,10 +95,11 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--priors", type=Path, default=None,
                     help="TOML file with [priors.NAME] dist=... tables overriding the defaults")
     opts.add_elements_option(sp)
-    sp.add_argument("--target-ess", type=float, default=1000.0,
-                    help="bulk ESS required for every parameter (default 1000)")
-    sp.add_argument("--max-steps", type=int, default=20_000,
-                    help="emcee step budget (default 20000)")
+    sp.add_argument("--target-ess", type=float, default=FIT_DEFAULTS.target_ess,
+                    help=f"bulk ESS required for every parameter "
+                         f"(default {FIT_DEFAULTS.target_ess:g})")
+    sp.add_argument("--max-steps", type=int, default=FIT_DEFAULTS.max_steps,
+                    help=f"emcee step budget (default {FIT_DEFAULTS.max_steps})")
     opts.add_preprocessing_options(sp)
     opts.add_json_option(sp, help="print the summary as JSON")
     sp.set_defaults(func=run)

@@ -16,7 +16,9 @@ two commands share has one name, default, help text and error message:
   ``--decimate``/``--resample``;
 * :func:`print_json` prints a strict-JSON record (``--json``).
 
-Nothing heavy is imported at import time: the trial reader is imported when called.
+Nothing heavy is imported at import time: the defaults come from
+:mod:`bayesbeam.inference.settings` (standard library only), the trial reader is
+imported when called.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from bayesbeam.inference.settings import FIT_DEFAULTS
 
 __all__ = [
     "PREPROCESSING",
@@ -92,9 +96,11 @@ def add_outdir_seed_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice")
 
 
-def add_elements_option(parser: argparse.ArgumentParser,
-                        help: str | None = "Hermite elements (default 16)") -> None:
-    """Add ``--elements`` (number of Hermite beam elements, default 16).
+def add_elements_option(
+    parser: argparse.ArgumentParser,
+    help: str | None = f"Hermite elements (default {FIT_DEFAULTS.n_elements})",
+) -> None:
+    """Add ``--elements`` (number of Hermite beam elements, default ``FIT_DEFAULTS``'s).
 
     Parameters
     ----------
@@ -103,7 +109,7 @@ def add_elements_option(parser: argparse.ArgumentParser,
     help : str or None
         Help text of the option.
     """
-    parser.add_argument("--elements", type=int, default=16, help=help)
+    parser.add_argument("--elements", type=int, default=FIT_DEFAULTS.n_elements, help=help)
 
 
 def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
@@ -114,7 +120,7 @@ def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
     parser : argparse.ArgumentParser
         The sub-command's parser.
     """
-    parser.add_argument("--initial", type=initial_condition, default="release",
+    parser.add_argument("--initial", type=initial_condition, default=FIT_DEFAULTS.initial,
                         help="initial condition: release (default), impulse or modes:K")
     pre = parser.add_mutually_exclusive_group()
     pre.add_argument("--decimate", type=int, default=None, metavar="Q",

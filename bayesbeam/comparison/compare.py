@@ -54,15 +54,13 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam.comparison.scoring import CompareError, ModelScore, _finite_or_none, evaluate
+from bayesbeam._util import finite_json
+from bayesbeam.comparison.scoring import CompareError, ModelScore, evaluate
 from bayesbeam.comparison.sensitivity import (
-    PriorReweight,
     SensitivityRow,
     _sensitivity,
-    prior_reweight,
-    prior_sensitivity,
 )
-from bayesbeam.inference.fit import fit_settings
+from bayesbeam.inference.settings import fit_settings
 from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.stats.criteria import elpd_difference
 from bayesbeam.stats.ranking import DEFAULT_THRESHOLD, _kass_raftery, _probabilities, _rank
@@ -71,17 +69,9 @@ from bayesbeam.trials.trial import Trial
 # Names defined in bayesbeam.comparison.scoring, .ranking and .sensitivity are listed too: they
 # have always been imported from here.
 __all__ = [
-    "DEFAULT_THRESHOLD",
-    "CompareError",
     "Comparison",
-    "ModelScore",
-    "PriorReweight",
-    "SensitivityRow",
     "compare",
     "compare_scores",
-    "evaluate",
-    "prior_reweight",
-    "prior_sensitivity",
 ]
 
 
@@ -212,7 +202,7 @@ class Comparison:
             hinges on a prior width); ``prior_sensitivity`` (one entry per scaled
             prior group and factor).
         """
-        return _finite_or_none({
+        return finite_json({
             "models": self._rows(),
             "best": self.best,
             "indistinguishable": list(self.indistinguishable),
@@ -572,7 +562,7 @@ def compare(
     **settings
         Forward-model and sampler settings of every fit (``n_elements``, ``initial``,
         ``nwalkers``, ``target_ess``, ``max_steps``, ``min_steps``), with the defaults
-        of :func:`bayesbeam.inference.fit.fit`.
+        of :data:`bayesbeam.inference.settings.FIT_DEFAULTS`.
 
     Returns
     -------

@@ -49,9 +49,11 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam.inference.fit import fit, fit_settings, thin_result
+from bayesbeam._util import finite_json
+from bayesbeam.inference.fit import fit, thin_result
 from bayesbeam.inference.problem import Problem
 from bayesbeam.inference.results import FitResult
+from bayesbeam.inference.settings import fit_settings
 from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.stats.criteria import LOO, WAIC, ParetoKWarning, WAICWarning, aic, bic, loo, waic
 from bayesbeam.stats.evidence import (
@@ -74,21 +76,6 @@ _BATCH = 256
 
 class CompareError(ValueError):
     """Invalid input to a model comparison; the message says how to fix it."""
-
-
-def _finite_or_none(x: Any) -> Any:
-    """Replace non-finite floats by ``None`` recursively (strict JSON)."""
-    if isinstance(x, bool | str) or x is None:
-        return x
-    if isinstance(x, int | np.integer):
-        return int(x)
-    if isinstance(x, float | np.floating):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, Mapping):
-        return {str(k): _finite_or_none(v) for k, v in x.items()}
-    if isinstance(x, list | tuple | np.ndarray):
-        return [_finite_or_none(v) for v in x]
-    return x
 
 
 @contextmanager
@@ -184,7 +171,7 @@ class ModelScore:
         -------
         dict
         """
-        return _finite_or_none(
+        return finite_json(
             {
                 "name": self.name,
                 "n_params": self.n_params,
@@ -272,8 +259,8 @@ def evaluate(
     **settings
         Forward-model and sampler settings of a new fit (``n_elements``, ``initial``,
         ``nwalkers``, ``target_ess``, ``max_steps``, ``min_steps``), with the defaults
-        of :func:`bayesbeam.inference.fit.fit`
-        (:func:`bayesbeam.inference.fit.fit_settings`). With a
+        of :data:`bayesbeam.inference.settings.FIT_DEFAULTS`
+        (:func:`bayesbeam.inference.settings.fit_settings`). With a
         ``result`` and no ``problem``, the result's own ``n_elements`` and ``initial``
         take precedence.
 

@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam.comparison.scoring import CompareError, ModelScore, _finite_or_none
+from bayesbeam._util import finite_json
+from bayesbeam.comparison.scoring import CompareError, ModelScore
 from bayesbeam.inference.results import FitResult
 from bayesbeam.stats.evidence import effective_sample_size
 from bayesbeam.stats.priors import PriorSet
@@ -266,7 +267,7 @@ class SensitivityRow:
         -------
         dict
         """
-        return _finite_or_none(
+        return finite_json(
             {
                 "parameters": list(self.parameters),
                 "factor": self.factor,

@@ -40,7 +40,7 @@ Procedure of one round (current model M)
    that a poor local optimum of M cannot make every extension look good).
 2. **Confirm** (expensive): emcee from the MAP (walkers in a ball shaped by the
    Laplace covariance, differential-evolution moves), then bridge-sampling evidence
-   with its Monte-Carlo error and PSIS-LOO (:func:`bayesbeam.comparison.compare.evaluate`) for M
+   with its Monte-Carlo error and PSIS-LOO (:func:`bayesbeam.comparison.scoring.evaluate`) for M
    and for the ``confirm_top`` best-screened candidates (plus any other within
    ``SCREEN_TIE`` = 3 nats of the best screen value).
 3. **Decide**. ``Δ = log Z(M+X) - log Z(M)`` with ``err = sqrt(err_M² + err_X²)``.
@@ -95,10 +95,11 @@ from typing import Any
 import numpy as np
 
 # The records (and the text of the signatures, which their narrative uses) are re-exported.
-from bayesbeam.diagnosis.records import CandidateScore, Diagnosis, Round, describe_signatures
+from bayesbeam.diagnosis.records import CandidateScore, Diagnosis, Round
 
 # DiagnoseError is defined with the search machinery (which raises it) and re-exported.
 from bayesbeam.diagnosis.search import DiagnoseError, _Engine, _State
+from bayesbeam.inference.settings import DIAGNOSIS_DEFAULTS
 from bayesbeam.physics.models import LAWS, STRUCTURAL, Model, parse_model
 from bayesbeam.trials.trial import Trial
 
@@ -107,11 +108,6 @@ __all__ = [
     "SCREEN_THRESHOLD",
     "SIGNIFICANCE",
     "TIE",
-    "CandidateScore",
-    "Diagnosis",
-    "DiagnoseError",
-    "Round",
-    "describe_signatures",
     "diagnose",
     "signature_support",
 ]
@@ -229,14 +225,14 @@ def diagnose(
     seed: int = 0,
     max_rounds: int = 3,
     candidates: Sequence[str] = CATALOGUE,
-    n_elements: int = 16,
-    initial: str = "release",
+    n_elements: int = DIAGNOSIS_DEFAULTS.n_elements,
+    initial: str = DIAGNOSIS_DEFAULTS.initial,
     priors: Mapping[str, Any] | None = None,
     confirm_top: int = 3,
-    nwalkers: int | None = None,
-    target_ess: float = 300.0,
-    min_steps: int = 200,
-    max_steps: int = 2000,
+    nwalkers: int | None = DIAGNOSIS_DEFAULTS.nwalkers,
+    target_ess: float = DIAGNOSIS_DEFAULTS.target_ess,
+    min_steps: int = DIAGNOSIS_DEFAULTS.min_steps,
+    max_steps: int = DIAGNOSIS_DEFAULTS.max_steps,
     loo_draws: int = 400,
     signatures: bool = True,
     progress: Callable[[str], None] | None = None,
@@ -268,7 +264,9 @@ def diagnose(
     confirm_top : int
         Screened candidates sampled per round (plus ties within 3 nats).
     nwalkers, target_ess, min_steps, max_steps : optional
-        emcee budget per sampled model (see :func:`bayesbeam.stats.sampling.run_emcee`).
+        emcee budget per sampled model (defaults:
+        :data:`bayesbeam.inference.settings.DIAGNOSIS_DEFAULTS`; see
+        :func:`bayesbeam.stats.sampling.run_emcee`).
     loo_draws : int
         Posterior draws for PSIS-LOO.
     signatures : bool

@@ -15,6 +15,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bayesbeam._util import finite_or_none
+
 __all__ = [
     "CandidateScore",
     "Diagnosis",
@@ -23,14 +25,6 @@ __all__ = [
 ]
 
 # --------------------------------------------------------------------------- records
-
-
-def _num(x: Any) -> Any:
-    """Float, or None when not finite (strict JSON)."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 @dataclass(frozen=True)
@@ -83,7 +77,8 @@ class CandidateScore:
         -------
         dict
         """
-        return {k: (_num(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
+        return {k: (finite_or_none(v) if isinstance(v, float) else v)
+                for k, v in self.__dict__.items()}
 
 
 @dataclass(frozen=True)
@@ -152,24 +147,24 @@ class Round:
             "index": self.index,
             "cause": self.cause,
             "equivalent": list(self.equivalent),
-            "delta_log_evidence": _num(self.delta_log_evidence),
-            "delta_log_evidence_err": _num(self.delta_log_evidence_err),
-            "delta_elpd": _num(self.delta_elpd),
-            "delta_elpd_se": _num(self.delta_elpd_se),
-            "rms_before": _num(self.rms_before),
-            "rms_after": _num(self.rms_after),
-            "coverage90_before": _num(self.coverage_before),
-            "coverage90_after": _num(self.coverage_after),
+            "delta_log_evidence": finite_or_none(self.delta_log_evidence),
+            "delta_log_evidence_err": finite_or_none(self.delta_log_evidence_err),
+            "delta_elpd": finite_or_none(self.delta_elpd),
+            "delta_elpd_se": finite_or_none(self.delta_elpd_se),
+            "rms_before": finite_or_none(self.rms_before),
+            "rms_after": finite_or_none(self.rms_after),
+            "coverage90_before": finite_or_none(self.coverage_before),
+            "coverage90_after": finite_or_none(self.coverage_after),
             "model_before": self.model_before,
             "model_after": self.model_after,
             "parameter_moves": {
-                k: {s: [_num(x) for x in v[s]] for s in ("before", "after")}
+                k: {s: [finite_or_none(x) for x in v[s]] for s in ("before", "after")}
                 for k, v in self.parameter_moves.items()
             },
             "signature": self.signature,
             "signature_agrees": self.signature_agrees,
             "candidates": [c.to_json_dict() for c in self.candidates],
-            "seconds": _num(self.seconds),
+            "seconds": finite_or_none(self.seconds),
         }
 
 
@@ -243,7 +238,7 @@ class Diagnosis:
             "thresholds": dict(self.thresholds),
             "signatures": sig,
             "notes": list(self.notes),
-            "seconds": _num(self.seconds),
+            "seconds": finite_or_none(self.seconds),
         }
 
     def narrative(self) -> str:

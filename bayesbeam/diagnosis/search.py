@@ -4,9 +4,10 @@
 per model (problem, MAP, Laplace log evidence, sampled score, residual signatures):
 
 * **MAP search** (:meth:`_Engine.optimise`): an E scan, L-BFGS-B restarts with a
-  finite-difference gradient (:func:`_gradient`, one-sided on a prior bound), then
-  damped Newton steps with a finite-difference Hessian (:func:`_newton_polish`), since
-  L-BFGS-B alone stops several nats short on these narrow curved ridges;
+  finite-difference gradient (:func:`~bayesbeam.stats.numdiff.fd_gradient`, one-sided on
+  a prior bound), then damped Newton steps with a finite-difference Hessian
+  (:func:`_newton_polish`), since L-BFGS-B alone stops several nats short on these
+  narrow curved ridges;
 * **start points** (:meth:`_Engine.starts`): the current MAP with the new parameters
   at neutral values (:func:`_neutral`), and physics-based starts from the data's modal
   estimates (:mod:`bayesbeam.trials.modal_id`): a structural parameter solved for the measured
@@ -14,7 +15,7 @@ per model (problem, MAP, Laplace log evidence, sampled score, residual signature
   decay rates (:func:`_set_damping`), drag or friction for the measured ζ1
   (:func:`_amplitude_starts`);
 * **confirmation** (:meth:`_Engine.confirm`): emcee from the MAP (:func:`_sample`)
-  then bridge-sampling evidence and PSIS-LOO (:func:`bayesbeam.comparison.compare.evaluate`).
+  then bridge-sampling evidence and PSIS-LOO (:func:`bayesbeam.comparison.scoring.evaluate`).
 
 The procedure, thresholds and records are in :mod:`bayesbeam.diagnosis.diagnose`, which
 re-exports :class:`DiagnoseError` (defined here so that this module need not import
@@ -34,6 +35,7 @@ import numpy as np
 import scipy.optimize as sopt
 
 from bayesbeam.physics.models import Model
+from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
 from bayesbeam.trials.trial import Trial
 
 __all__ = ["DiagnoseError"]
@@ -54,7 +56,7 @@ class _State:
     lp: float = -math.inf
     ll: float = -math.inf
     laplace: float = math.nan
-    score: Any = None  # compare.ModelScore
+    score: Any = None  # scoring.ModelScore
     sig: Any = None  # signatures.Signatures
     seconds: float = 0.0
 
@@ -150,7 +152,9 @@ class _Engine:
                   for lo, hi in pb.priors.bounds_u]
 
         def negf(u: np.ndarray) -> tuple[float, np.ndarray]:
-            v, g = _gradient(pb.log_prob, u)
+            # One-sided on a prior bound (e.g. rho = 0): a central difference would be
+            # infinite there and the optimiser would never leave the bound.
+            v, g = fd_gradient(pb.log_prob, u, 1e-6, one_sided=True)
             if not np.isfinite(v):
                 return 1e300, np.zeros_like(u)
             return -v, -g
@@ -255,7 +259,7 @@ class _Engine:
         """Sample from the MAP and score (bridge evidence, LOO); cached."""
         if st.score is not None:
             return st.score
-        from bayesbeam.comparison.compare import evaluate
+        from bayesbeam.comparison.scoring import evaluate
 
         t0 = time.perf_counter()
         self._k += 1
@@ -279,43 +283,6 @@ class _Engine:
         return st.sig
 
 
-def _gradient(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
-              h: float = 1e-6) -> tuple[float, np.ndarray]:
-    """Value and finite-difference gradient of a vectorised function (one call).
-
-    Central differences, one-sided where the other side is outside the support (a
-    parameter on a prior bound, e.g. rho = 0: a central difference would be infinite
-    and the optimiser would never leave the bound); 0 where both sides are.
-    """
-    d = u.size
-    v = f(np.vstack([u, u + h * np.eye(d), u - h * np.eye(d)]))
-    f0, fp, fm = v[0], v[1 : d + 1], v[d + 1 :]
-    g = np.where(np.isfinite(fp) & np.isfinite(fm), (fp - fm) / (2 * h),
-                 np.where(np.isfinite(fp), (fp - f0) / h,
-                          np.where(np.isfinite(fm), (f0 - fm) / h, 0.0)))
-    return float(f0), g
-
-
-def _fd_hessian(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
-                h: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Central-difference value, gradient and Hessian of a vectorised function (one call)."""
-    d = u.size
-    E = np.diag(h)
-    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
-    pts = [u[None], u + E, u - E]
-    pts += [np.array([u + si * E[i] + sj * E[j] for i, j in pairs]).reshape(-1, d)
-            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
-    v = f(np.vstack(pts))
-    f0, fp, fm = v[0], v[1 : d + 1], v[d + 1 : 2 * d + 1]
-    g = (fp - fm) / (2 * h)
-    H = np.diag((fp - 2 * f0 + fm) / h**2)
-    p = len(pairs)
-    q = v[2 * d + 1 :].reshape(4, p) if p else np.zeros((4, 0))
-    for k, (i, j) in enumerate(pairs):
-        H[i, j] = H[j, i] = (q[0, k] - q[1, k] - q[2, k] + q[3, k]) / (4 * h[i] * h[j])
-    return float(f0), g, H
-
-
 def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,
                    bounds: Sequence[tuple[float | None, float | None]],
                    iters: int = 6) -> tuple[np.ndarray, float]:
@@ -330,7 +297,7 @@ def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: floa
     h = 1e-4 * np.maximum(1.0, np.abs(u))
     for _ in range(iters):
         with np.errstate(all="ignore"):
-            _, g, H = _fd_hessian(f, u, h)
+            _, g, H = fd_hessian(f, u, h)
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
             break
         curv = -np.diag(H)
@@ -500,11 +467,10 @@ def _set_damping(pb: Any, lin: Any, v: dict[str, float], feats: Mapping[str, flo
 def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any],
             notes: list[str]) -> Any:
     """Sample with emcee from a ball around the MAP (shaped by the Laplace covariance)."""
-    import emcee
-
     from bayesbeam.inference import fit as fitmod
     from bayesbeam.inference.results import FitResult, make_provenance
-    from bayesbeam.stats.sampling import NotConvergedWarning, init_walkers, run_emcee
+    from bayesbeam.inference.settings import walker_count
+    from bayesbeam.stats.sampling import NotConvergedWarning, de_moves, init_walkers, run_emcee
 
     rng = np.random.default_rng(seed)
     ndim = pb.ndim
@@ -513,18 +479,15 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
         cov = fitmod.laplace_covariance(pb, u_map)
     scale = 0.1 * np.sqrt(np.diag(cov)) if cov is not None else np.full(ndim, 1e-3)
     scale = np.clip(np.where(np.isfinite(scale), scale, 1e-3), 1e-8, 0.5)
-    nwalkers = settings["nwalkers"] or max(32, 4 * ndim)
-    nwalkers += nwalkers % 2
+    nwalkers = walker_count(settings["nwalkers"], ndim)
     u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng, scale=scale)
     t0 = time.perf_counter()
-    # Differential-evolution moves mix faster on these correlated posteriors (fit.py).
-    moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
         chain = run_emcee(pb.log_prob, u0, seed=seed, max_steps=int(settings["max_steps"]),
                           min_steps=int(settings["min_steps"]),
                           target_ess=float(settings["target_ess"]), names=pb.names,
-                          moves=moves, progress=False)
+                          moves=de_moves(), progress=False)
     for w in caught:
         if issubclass(w.category, NotConvergedWarning):
             notes.append(f"{pb.model.name}: {w.message}")

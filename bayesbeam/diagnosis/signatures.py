@@ -29,9 +29,9 @@ frozen :class:`Signatures` record:
 :func:`plot_signatures` draws them on a :class:`matplotlib.figure.Figure` (object API,
 no pyplot state).
 
-The estimators on a signal alone (spectra, whiteness test, modal and decay-vs-amplitude
-estimates) live in :mod:`bayesbeam.trials.modal_id`; they are re-exported here, where they
-were first defined.
+The whiteness statistics are :mod:`bayesbeam.stats.whiteness`'s. The estimators on a
+signal alone (spectra, modal and decay-vs-amplitude estimates) live in
+:mod:`bayesbeam.trials.modal_id`; they are re-exported here, where they were first defined.
 """
 
 from __future__ import annotations
@@ -42,17 +42,17 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam._util import finite_or_none
+from bayesbeam.stats.whiteness import autocorrelation, ljung_box
+
 # Re-exported: these names were defined here first and are imported from here.
 from bayesbeam.trials.modal_id import (
     DecayAmplitude,
     ModalEstimate,
     SignatureError,
-    _finite,
-    autocorrelation,
     band_modal_estimate,
     damped_sinusoids,
     decay_rate_vs_amplitude,
-    ljung_box,
     periodogram,
     spectral_peak,
     uniform_grid,
@@ -64,12 +64,10 @@ __all__ = [
     "ModeComparison",
     "SignatureError",
     "Signatures",
-    "autocorrelation",
     "band_modal_estimate",
     "compute_signatures",
     "damped_sinusoids",
     "decay_rate_vs_amplitude",
-    "ljung_box",
     "model_modes",
     "periodogram",
     "plot_signatures",
@@ -206,15 +204,15 @@ class ModeComparison:
         dict
         """
         def est(e: ModalEstimate | None) -> dict[str, float] | None:
-            return None if e is None else {k: _finite(v) for k, v in e.__dict__.items()}
+            return None if e is None else {k: finite_or_none(v) for k, v in e.__dict__.items()}
 
         return {
             "mode": self.mode,
-            "f_model_eig_hz": _finite(self.f_model_eig),
-            "zeta_model_eig": _finite(self.zeta_model_eig),
+            "f_model_eig_hz": finite_or_none(self.f_model_eig),
+            "zeta_model_eig": finite_or_none(self.zeta_model_eig),
             "data": est(self.data),
             "model": est(self.model),
-            "frequency_shift": _finite(self.frequency_shift),
+            "frequency_shift": finite_or_none(self.frequency_shift),
         }
 
 
@@ -330,32 +328,34 @@ class Signatures:
             "model": self.model,
             "quantity": self.quantity,
             "n_samples": int(self.times.size),
-            "rms_residual": _finite(self.rms_residual),
-            "rms_data": _finite(self.rms_data),
-            "residual_mean": _finite(self.residual_mean),
-            "residual_mean_z": _finite(self.residual_mean_z),
-            "lowfreq_fraction": _finite(self.lowfreq_fraction),
-            "acf": [_finite(v) for v in self.acf[:51]],
-            "lag1": _finite(self.lag1),
-            "ljung_box": {"q": _finite(self.ljung_box_q), "p": _finite(self.ljung_box_p),
+            "rms_residual": finite_or_none(self.rms_residual),
+            "rms_data": finite_or_none(self.rms_data),
+            "residual_mean": finite_or_none(self.residual_mean),
+            "residual_mean_z": finite_or_none(self.residual_mean_z),
+            "lowfreq_fraction": finite_or_none(self.lowfreq_fraction),
+            "acf": [finite_or_none(v) for v in self.acf[:51]],
+            "lag1": finite_or_none(self.lag1),
+            "ljung_box": {"q": finite_or_none(self.ljung_box_q),
+                          "p": finite_or_none(self.ljung_box_p),
                           "lags": self.ljung_box_lags, "series": self.whiteness_series,
                           "white_at_1pc": self.white},
-            "model_frequencies_hz": [_finite(v) for v in self.model_frequencies],
-            "model_damping_ratios": [_finite(v) for v in self.model_damping],
+            "model_frequencies_hz": [finite_or_none(v) for v in self.model_frequencies],
+            "model_damping_ratios": [finite_or_none(v) for v in self.model_damping],
             "modes": [m.to_json_dict() for m in self.modes],
-            "ratio_f2_f1": {"data": _finite(self.ratio_data), "model": _finite(self.ratio_model),
-                            "shift": _finite(self.ratio_shift),
-                            "shift_err": _finite(self.ratio_shift_err)},
-            "zeta2_over_zeta1": {"data": _finite(self.zeta_ratio_data),
-                                 "model": _finite(self.zeta_ratio_model)},
+            "ratio_f2_f1": {"data": finite_or_none(self.ratio_data),
+                            "model": finite_or_none(self.ratio_model),
+                            "shift": finite_or_none(self.ratio_shift),
+                            "shift_err": finite_or_none(self.ratio_shift_err)},
+            "zeta2_over_zeta1": {"data": finite_or_none(self.zeta_ratio_data),
+                                 "model": finite_or_none(self.zeta_ratio_model)},
             "decay_vs_amplitude": {
                 "data": None if self.decay_data is None else self.decay_data.to_json_dict(),
                 "model": None if self.decay_model is None else self.decay_model.to_json_dict(),
-                "excess_difference": _finite(self.decay_excess_diff),
-                "excess_difference_err": _finite(self.decay_excess_diff_err),
+                "excess_difference": finite_or_none(self.decay_excess_diff),
+                "excess_difference_err": finite_or_none(self.decay_excess_diff_err),
             },
-            "coverage": {"central50": _finite(self.coverage50),
-                         "central90": _finite(self.coverage90)},
+            "coverage": {"central50": finite_or_none(self.coverage50),
+                         "central90": finite_or_none(self.coverage90)},
             "notes": list(self.notes),
         }
 

@@ -1,7 +1,8 @@
 """One model on one trial: log posterior, MAP, emcee posterior, result record.
 
 One model on one trial: the log posterior (:class:`Problem`), MAP and emcee
-posterior (``bayesbeam.inference.fit.fit``), and the :class:`FitResult` record.
+posterior (``bayesbeam.inference.fit.fit``), its settings and their defaults
+(:class:`FitSettings`), and the :class:`FitResult` record.
 
 Layer: above :mod:`bayesbeam.trials`.
 """
@@ -13,12 +14,14 @@ _EXPORTS = {
     "clip_to_prior": ".fit",
     "decay_rate": ".fit",
     "default_priors": ".problem",
+    "DIAGNOSIS_DEFAULTS": ".settings",
     "find_map": ".fit",
     "first_frequency": ".problem",
-    "FIT_SETTINGS": ".fit",
-    "fit_settings": ".fit",
+    "FIT_DEFAULTS": ".settings",
+    "fit_settings": ".settings",
     "FitError": ".fit",
     "FitResult": ".results",
+    "FitSettings": ".settings",
     "laplace_covariance": ".fit",
     "make_provenance": ".results",
     "Problem": ".problem",
@@ -28,6 +31,7 @@ _EXPORTS = {
     "SamplerCoordinates": ".fit",
     "scan_E": ".fit",
     "thin_result": ".fit",
+    "walker_count": ".settings",
 }
 
 __all__ = sorted(_EXPORTS)

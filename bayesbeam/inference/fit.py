@@ -14,7 +14,6 @@ space ``u`` of :mod:`bayesbeam.stats.priors` as usual.
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -27,22 +26,22 @@ from scipy.special import logsumexp
 
 from bayesbeam.inference.problem import BETA1, Problem, first_frequency
 from bayesbeam.inference.results import FitResult, make_provenance
+from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.physics.propagate import single_blas_thread
 from bayesbeam.stats.convergence import autocorr_time, ess_rhat
-from bayesbeam.stats.priors import HalfNormal, LogNormal, LogUniform
-from bayesbeam.stats.sampling import Chain, init_walkers, run_emcee
+from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform
+from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
+from bayesbeam.stats.sampling import Chain, de_moves, init_walkers, run_emcee
 from bayesbeam.trials.trial import Trial
 
 __all__ = [
-    "FIT_SETTINGS",
     "FitError",
     "SamplerCoordinates",
     "clip_to_prior",
     "decay_rate",
     "find_map",
     "fit",
-    "fit_settings",
     "laplace_covariance",
     "profile_linear",
     "scan_E",
@@ -244,17 +243,11 @@ def scan_E(problem: Problem, X: np.ndarray, n_grid: int = 96) -> np.ndarray:
     return clip_to_prior(problem, out)
 
 
-def _fd_gradient(f, u: np.ndarray, h: float = 1e-6) -> tuple[float, np.ndarray]:
-    """Value and central-difference gradient of a vectorised function (one batch)."""
-    d = u.size
-    pts = np.vstack([u, u + h * np.eye(d), u - h * np.eye(d)])
-    v = f(pts)
-    g = (v[1 : d + 1] - v[d + 1 :]) / (2 * h)
-    return float(v[0]), g
-
-
 def laplace_covariance(problem: Problem, u: np.ndarray, h: float = 1e-4) -> np.ndarray | None:
     """Inverse of the negative Hessian of log_prob at ``u`` (central differences, one batch).
+
+    The Hessian is :func:`~bayesbeam.stats.numdiff.fd_hessian` with the four-point
+    ``"corners"`` stencil on every entry.
 
     Parameters
     ----------
@@ -266,26 +259,13 @@ def laplace_covariance(problem: Problem, u: np.ndarray, h: float = 1e-4) -> np.n
     Returns
     -------
     ndarray, shape (ndim, ndim) or None
-        None when the Hessian is not negative definite there.
+        None when the Hessian is not negative definite there, or a stencil point lies
+        outside the prior support.
     """
-    d = u.size
-    eye = np.eye(d) * h
-    pts = [u]
-    for i in range(d):
-        for j in range(i, d):
-            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-                pts.append(u + si * eye[i] + sj * eye[j])
-    v = problem.log_prob(np.array(pts))
-    if not np.all(np.isfinite(v)):
-        return None  # a stencil point left the prior support (MAP on a bound)
-    H = np.zeros((d, d))
-    k = 1
-    for i in range(d):
-        for j in range(i, d):
-            pp, pm, mp, mm = v[k : k + 4]
-            k += 4
-            H[i, j] = H[j, i] = (pp - pm - mp + mm) / (4 * h * h)
-    if not np.all(np.isfinite(H)):
+    # Every stencil value enters H (or is f0), so a point that left the prior support
+    # (MAP on a bound) shows as a non-finite H or f0.
+    f0, _, H = fd_hessian(problem.log_prob, u, h, stencil="corners")
+    if not (np.isfinite(f0) and np.all(np.isfinite(H))):
         return None
     try:
         L = np.linalg.cholesky(-H)
@@ -319,7 +299,7 @@ def find_map(
     best_u, best_v = None, -np.inf
 
     def negf(u: np.ndarray) -> tuple[float, np.ndarray]:
-        v, g = _fd_gradient(problem.log_prob, u)
+        v, g = fd_gradient(problem.log_prob, u, 1e-6)
         if not np.isfinite(v):
             return 1e300, np.zeros_like(u)
         g = np.where(np.isfinite(g), g, 0.0)
@@ -438,15 +418,6 @@ class SamplerCoordinates:
         return U
 
 
-def _moves() -> list:
-    # Differential-evolution proposals (ter Braak 2006; ter Braak & Vrugt 2008) mix much
-    # faster than the default stretch move on these near-Gaussian, correlated posteriors
-    # (integrated autocorrelation times about 3-4x shorter in our runs).
-    import emcee
-
-    return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
-
-
 _SAMPLER_OPTIONS = ("n_tau", "tau_rtol", "check_every", "burn_in_taus", "thin",
                     "checkpoint_seconds")
 
@@ -459,41 +430,6 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     return opts
 
 
-#: Forward-model and sampler settings of :func:`fit` that the model comparison
-#: (:func:`bayesbeam.comparison.compare.evaluate`,
-#: :func:`bayesbeam.comparison.compare.compare`) takes as
-#: keywords and passes on; :func:`fit_settings` completes them.
-FIT_SETTINGS = ("n_elements", "initial", "nwalkers", "target_ess", "max_steps", "min_steps")
-
-
-def fit_settings(settings: Mapping[str, Any], *, caller: str = "fit") -> dict[str, Any]:
-    """Check forward-model and sampler settings and fill in the defaults of :func:`fit`.
-
-    Parameters
-    ----------
-    settings : mapping
-        Some of :data:`FIT_SETTINGS`, by name.
-    caller : str
-        Function named in the error message.
-
-    Returns
-    -------
-    dict
-        Every name of :data:`FIT_SETTINGS`, in that order.
-
-    Raises
-    ------
-    TypeError
-        For a name that is not a fit setting, as for any unexpected keyword argument.
-    """
-    for name in settings:
-        if name not in FIT_SETTINGS:
-            raise TypeError(f"{caller}() got an unexpected keyword argument {name!r}")
-    # fit's signature is the one place the defaults are written.
-    defaults = inspect.signature(fit).parameters
-    return {name: settings.get(name, defaults[name].default) for name in FIT_SETTINGS}
-
-
 @single_blas_thread
 def fit(
     trial: Trial,
@@ -501,12 +437,12 @@ def fit(
     *,
     seed: int = 0,
     priors: Mapping[str, Any] | None = None,
-    n_elements: int = 16,
-    initial: str = "release",
-    nwalkers: int | None = None,
-    target_ess: float = 1000.0,
-    max_steps: int = 20_000,
-    min_steps: int = 300,
+    n_elements: int = FIT_DEFAULTS.n_elements,
+    initial: str = FIT_DEFAULTS.initial,
+    nwalkers: int | None = FIT_DEFAULTS.nwalkers,
+    target_ess: float = FIT_DEFAULTS.target_ess,
+    max_steps: int = FIT_DEFAULTS.max_steps,
+    min_steps: int = FIT_DEFAULTS.min_steps,
     outdir: str | Path | None = None,
     resume: bool = False,
     progress: bool | None = None,
@@ -524,13 +460,11 @@ def fit(
         Seed of every random choice (starts, walkers, emcee).
     priors : mapping, optional
         Overrides of :func:`bayesbeam.inference.problem.default_priors`.
-    n_elements : int
-    initial : str
-        Initial-condition kind (see :class:`bayesbeam.physics.forward.Forward`).
-    nwalkers : int, optional
-        Default max(32, 4 ndim), even.
-    target_ess, max_steps, min_steps : float, int, int
-        Convergence target and budget (see :func:`bayesbeam.stats.sampling.run_emcee`).
+    n_elements, initial, nwalkers, target_ess, max_steps, min_steps : optional
+        Mesh, initial-condition kind, walkers, convergence target and step budget: the
+        fields of :class:`bayesbeam.inference.settings.FitSettings`, whose defaults
+        (:data:`~bayesbeam.inference.settings.FIT_DEFAULTS`) these keywords take
+        (see also :func:`bayesbeam.stats.sampling.run_emcee`).
     outdir : path, optional
         Where the HDF5 checkpoint ``chain.h5`` is kept (and results saved by the CLI).
     resume : bool
@@ -559,9 +493,7 @@ def fit(
     rng = np.random.default_rng(seed)
     u_map, lp_map = find_map(problem, rng=rng)
     ndim = problem.ndim
-    if nwalkers is None:
-        nwalkers = max(32, 4 * ndim)
-    nwalkers += nwalkers % 2
+    nwalkers = walker_count(nwalkers, ndim)
     cov = laplace_covariance(problem, u_map)
     scale = 0.1 * np.sqrt(np.diag(cov)) if cov is not None else np.full(ndim, 1e-4)
     scale = np.clip(scale, 1e-8, 0.5)
@@ -587,7 +519,7 @@ def fit(
         resume=resume,
         progress=progress,
         names=problem.names,
-        moves=_moves(),
+        moves=de_moves(),
         **sampler_kw,
     )
     if not coords.identity:

@@ -40,8 +40,9 @@ import scipy.linalg as sla
 from bayesbeam.physics.fem import assemble
 from bayesbeam.physics.forward import Forward, Response, initial_names
 from bayesbeam.physics.models import Model, parse_model
+from bayesbeam.stats.families import LogUniform, Normal, Prior, Uniform
 from bayesbeam.stats.likelihood import ar1_loglik, ar1_pointwise, iid_loglik, iid_pointwise
-from bayesbeam.stats.priors import LogUniform, Normal, Prior, PriorSet, Uniform
+from bayesbeam.stats.priors import PriorSet
 from bayesbeam.trials.trial import Trial
 
 __all__ = ["BETA1", "Problem", "default_priors", "first_frequency", "reference_modulus"]

@@ -27,7 +27,6 @@ from __future__ import annotations
 import copy
 import datetime as _dt
 import json
-import math
 import platform
 import sys
 from collections.abc import Mapping
@@ -38,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import distribution_version, json_default
+from bayesbeam._util import distribution_version, finite_json, json_default
 from bayesbeam.stats.priors import PriorSet
 from bayesbeam.stats.sampling import Chain
 
@@ -83,17 +82,6 @@ def make_provenance(extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
 
 def _frozen_mapping(m: Mapping[str, Any] | None) -> Mapping[str, Any]:
     return MappingProxyType(copy.deepcopy(dict(m or {})))
-
-
-def _strict(obj: Any) -> Any:
-    """Replace non-finite floats by ``None`` so the output is strict JSON."""
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, Mapping):
-        return {k: _strict(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_strict(v) for v in obj]
-    return obj
 
 
 def _named_arrays(value: Any, default_name: str) -> dict[str, np.ndarray]:
@@ -250,7 +238,7 @@ class FitResult:
         """
         d = self.diagnostics()
         mt = self.map_theta
-        return _strict(
+        return finite_json(
             {
                 "model": self.model,
                 "posterior": self.summary(),

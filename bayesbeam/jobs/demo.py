@@ -35,13 +35,13 @@ import hashlib
 import json
 import platform
 import time
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import finite_json
+from bayesbeam._util import file_sha256, finite_json, read_toml
+from bayesbeam.inference.settings import FIT_DEFAULTS
 from bayesbeam.jobs.summary import beam_of, beam_summary, conclusions_text, format_table
 
 __all__ = [
@@ -53,9 +53,7 @@ __all__ = [
     "QUICK_SETTINGS",
     "DemoError",
     "Replication",
-    "beam_summary",
     "find_data",
-    "format_table",
     "list_trials",
     "run_demo",
     "run_diagnosis_task",
@@ -63,13 +61,13 @@ __all__ = [
 ]
 
 #: The shipped trials: ``data/`` next to the package folder in a source checkout.
-DATA_DIR = Path(__file__).resolve().parents[1] / "data"
+DATA_DIR = Path(__file__).resolve().parents[2] / "data"  # the repo root, beside the package
 
 #: The source study's three damping models.
 MODELS: tuple[str, ...] = ("viscous", "viscous+kv", "viscous+sh")
 
 #: Fit settings of the demo (see the module docstring; keys of
-#: :data:`bayesbeam.jobs.executor.DEFAULT_SETTINGS`).
+#: :data:`bayesbeam.jobs.tasks.DEFAULT_SETTINGS`).
 DEMO_SETTINGS: dict[str, Any] = {
     "n_elements": 8,
     "nwalkers": 24,
@@ -172,10 +170,6 @@ def list_trials(data_dir: str | Path | None = None, *, beams: Sequence[str] | No
     return out
 
 
-def _sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 # --------------------------------------------------------------------------- diagnosis
 
 
@@ -242,7 +236,7 @@ def _diagnosis_spec(trial_file: Path, seed: int, settings: Mapping[str, Any]) ->
 
     key_src = {k: v for k, v in spec.items() if k != "trial_file"}
     key_src["data_sha256"] = read_trial(trial_file).sha256
-    key_src["toml_sha256"] = _sha(trial_file)
+    key_src["toml_sha256"] = file_sha256(trial_file)
     spec["key"] = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()
     return spec
 
@@ -288,8 +282,10 @@ def _overlay(trial_file: Path, trial_dir: Path, models: Sequence[str], dpi: int)
         res = FitResult.load(folder)
         if res.map_u is None:
             continue
-        pb = Problem(trial, m, res.priors, n_elements=int(res.settings.get("n_elements", 16)),
-                     initial=str(res.settings.get("initial", "release")))
+        s = res.settings
+        pb = Problem(trial, m, res.priors,
+                     n_elements=int(s.get("n_elements", FIT_DEFAULTS.n_elements)),
+                     initial=str(s.get("initial", FIT_DEFAULTS.initial)))
         pred = pb.predict(pb.theta(np.asarray(res.map_u)[None])).y[0]
         ax1.plot(t, 1e3 * pred, lw=0.8, ls="--", color=f"C{i}", label=f"{m} (MAP)")
         r = 1e6 * (y - pred)
@@ -375,7 +371,7 @@ def run_replication(
         Subsets, e.g. ``beams=["beam1"]``, ``trials=[1]``.
     models : sequence of str
     settings : mapping, optional
-        Fit settings (keys of :data:`bayesbeam.jobs.executor.DEFAULT_SETTINGS`); default the
+        Fit settings (keys of :data:`bayesbeam.jobs.tasks.DEFAULT_SETTINGS`); default the
         package defaults (a full study). The demo passes :data:`DEMO_SETTINGS`.
     seed : int
         Seed of every fit.
@@ -400,14 +396,8 @@ def run_replication(
     """
     from bayesbeam._util import distribution_version
     from bayesbeam.comparison.compare import compare_scores
-    from bayesbeam.jobs.executor import (
-        DEFAULT_SETTINGS,
-        _progress_sink,
-        fit_tasks,
-        load_score,
-        make_executor,
-        run_fits,
-    )
+    from bayesbeam.jobs.executor import _progress_sink, load_score, make_executor, run_fits
+    from bayesbeam.jobs.tasks import DEFAULT_SETTINGS, fit_tasks
 
     t_start = time.perf_counter()
     if plots not in ("first", "all", "none"):
@@ -488,8 +478,7 @@ def run_replication(
     truth = None
     tpath = find_data(data_dir) / "truth.toml"
     if tpath.is_file():
-        with tpath.open("rb") as fh:
-            truth = tomllib.load(fh)
+        truth = read_toml(tpath, what="truth file", error=DemoError)
     conclusions = conclusions_text(rows, truth)
     task_cpu = sum(float(o.score.get("task_cpu_seconds") or 0.0) for o in outcomes
                    if not o.cached)
@@ -508,7 +497,7 @@ def run_replication(
         "diagnosis": None if diag_record is None else {
             k: diag_record.get(k) for k in ("trial", "baseline", "final_model", "named_causes",
                                             "verdict")},
-        "data": {f.stem: {"toml": f.name, "toml_sha256": _sha(f),
+        "data": {f.stem: {"toml": f.name, "toml_sha256": file_sha256(f),
                           "data_sha256": next(t.data_sha256 for t in tasks
                                               if t.trial_name == f.stem)} for f in files},
         "provenance": {"bayesbeam": distribution_version("bayesbeam"),

@@ -41,7 +41,7 @@ Layout of one task's folder (``outdir/<trial name>/<model>/``):
                            (when the task asks for plots)
 =========================  ===============================================================
 
-:func:`load_score` rebuilds a :class:`bayesbeam.comparison.compare.ModelScore` from such a folder,
+:func:`load_score` rebuilds a :class:`bayesbeam.comparison.scoring.ModelScore` from such a folder,
 so :func:`bayesbeam.comparison.compare.compare_scores` ranks cached and fresh results alike.
 
 :class:`FitTask`, :func:`task_key`, :func:`fit_tasks` and the worker entry point
@@ -64,27 +64,17 @@ from typing import Any
 
 # Re-exported from bayesbeam.jobs.tasks: studies, tests and jobs.demo import these from here.
 from bayesbeam.jobs.tasks import (
-    DEFAULT_SETTINGS,
     ExecutorError,
     FitTask,
     TaskOutcome,
-    fit_tasks,
     run_fit_task,
-    task_key,
 )
 
 __all__ = [
-    "DEFAULT_SETTINGS",
-    "ExecutorError",
-    "FitTask",
-    "TaskOutcome",
-    "fit_tasks",
     "load_score",
     "make_executor",
     "map_tasks",
-    "run_fit_task",
     "run_fits",
-    "task_key",
 ]
 
 
@@ -331,7 +321,7 @@ def run_fits(
 
 
 def load_score(folder: str | Path) -> Any:
-    """Rebuild a :class:`bayesbeam.comparison.compare.ModelScore` from a task's result folder.
+    """Rebuild a :class:`bayesbeam.comparison.scoring.ModelScore` from a task's result folder.
 
     Parameters
     ----------
@@ -340,14 +330,14 @@ def load_score(folder: str | Path) -> Any:
 
     Returns
     -------
-    bayesbeam.comparison.compare.ModelScore
+    bayesbeam.comparison.scoring.ModelScore
         Its ``loglik`` is an empty array of shape (0, 0, T): the pointwise
         log-likelihood of the draws is not stored (tens of MB per fit); LOO and WAIC
         keep their pointwise terms, which is what the ranking needs.
     """
     import numpy as np
 
-    from bayesbeam.comparison.compare import ModelScore
+    from bayesbeam.comparison.scoring import ModelScore
     from bayesbeam.inference.results import FitResult
     from bayesbeam.stats.criteria import LOO, WAIC
     from bayesbeam.stats.evidence import Evidence

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import finite_json, json_default
+from bayesbeam._util import file_sha256, finite_json, json_default
+from bayesbeam.inference.settings import FIT_DEFAULTS, FitSettings
 
 __all__ = [
     "DEFAULT_SETTINGS",
@@ -39,14 +40,10 @@ __all__ = [
     "task_key",
 ]
 
-#: Settings of one fit (passed to :func:`bayesbeam.comparison.compare.evaluate`) and of its plots.
+#: Settings of one fit (passed to :func:`bayesbeam.comparison.scoring.evaluate`) and of its plots.
+#: The fit settings are the package's (:data:`bayesbeam.inference.settings.FIT_DEFAULTS`).
 DEFAULT_SETTINGS: dict[str, Any] = {
-    "n_elements": 16,
-    "initial": "release",
-    "nwalkers": None,
-    "target_ess": 1000.0,
-    "max_steps": 20_000,
-    "min_steps": 300,
+    **dataclasses.asdict(FIT_DEFAULTS),
     "n_loo_draws": 1000,
     "proposal": "normal",
     "plots": False,
@@ -54,8 +51,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "ppc_draws": 100,
 }
 
-_EVALUATE_KEYS = ("n_elements", "initial", "nwalkers", "target_ess", "max_steps", "min_steps",
-                  "n_loo_draws", "proposal")
+_EVALUATE_KEYS = (*(f.name for f in dataclasses.fields(FitSettings)), "n_loo_draws", "proposal")
 
 
 class ExecutorError(ValueError):
@@ -63,10 +59,6 @@ class ExecutorError(ValueError):
 
 
 # --------------------------------------------------------------------------- tasks
-
-
-def _sha256_file(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -191,7 +183,7 @@ def fit_tasks(
         for m in names:
             out.append(FitTask(
                 trial_file=str(path), trial_name=trial.name, data_sha256=trial.sha256,
-                toml_sha256=_sha256_file(path), model=m, seed=int(seed), settings=dict(s),
+                toml_sha256=file_sha256(path), model=m, seed=int(seed), settings=dict(s),
             ))
     return out
 
@@ -265,7 +257,7 @@ def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any
     """Fit, score and (optionally) plot one task into ``folder``; return score.json."""
     import numpy as np
 
-    from bayesbeam.comparison.compare import evaluate
+    from bayesbeam.comparison.scoring import evaluate
     from bayesbeam.inference.problem import Problem
     from bayesbeam.trials.io import read_trial
 

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bayesbeam._util import read_toml
 
 __all__ = ["Beam", "BeamError", "Gradient", "Segment", "QUANTITIES"]
 
@@ -274,14 +275,7 @@ class Beam:
         -------
         Beam
         """
-        path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                doc = tomllib.load(fh)
-        except FileNotFoundError:
-            raise BeamError(f"beam file {path} not found") from None
-        except tomllib.TOMLDecodeError as err:
-            raise BeamError(f"{path} is not valid TOML: {err}") from None
+        doc = read_toml(path, what="beam file", error=BeamError)
         return cls.from_dict(doc.get("beam", doc))
 
     def to_dict(self) -> dict[str, Any]:

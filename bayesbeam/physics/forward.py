@@ -18,6 +18,7 @@ import scipy.linalg as sla
 
 from bayesbeam.physics import propagate
 from bayesbeam.physics.beam import Beam
+from bayesbeam.physics.expm import expm_batched
 from bayesbeam.physics.fem import FEModel, assemble, static_tip_shape
 from bayesbeam.physics.hysteresis import HysteresisOperator
 from bayesbeam.physics.models import Model, parse_model
@@ -502,13 +503,13 @@ class Forward:
         P = np.full(A.shape, np.nan)
         fin = np.flatnonzero(np.isfinite(A).all(axis=(1, 2)))
         try:
-            P[fin] = propagate.expm_batched(A[fin] * self._lead)
+            P[fin] = expm_batched(A[fin] * self._lead)
         except propagate.PropagationError:
             # Some set overflows (absurd parameters): redo one by one so that only those
             # sets are lost, not the batch.
             for k in fin:
                 try:
-                    P[k] = propagate.expm_batched(A[k : k + 1] * self._lead)[0]
+                    P[k] = expm_batched(A[k : k + 1] * self._lead)[0]
                 except propagate.PropagationError:
                     continue  # stays NaN: flagged invalid by the caller
         return np.einsum("bij,bj->bi", P, z0)

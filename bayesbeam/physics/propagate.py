@@ -14,7 +14,7 @@ acceleration ``[-s_q Ω, -s_q C]`` with ``s_q = N(x_s) Φ``).
 
 There is no time-stepping error; everything is exact up to rounding.
 
-* :func:`expm_batched` (from :mod:`bayesbeam.physics.expm`, re-exported here) — scaling and
+* :func:`~bayesbeam.physics.expm.expm_batched` (in :mod:`bayesbeam.physics.expm`) — scaling and
   squaring with a Taylor series, degree and squarings chosen per matrix so that the
   truncation has a relative backward error ≤ 2^-53 (Al-Mohy & Higham 2009).
 * :func:`response_uniform` — ``y_k = h · P^k z0`` with ``P = expm(A dt)`` by a
@@ -60,14 +60,11 @@ from bayesbeam.physics.expm import (
     _finite_real,
     _inv_factorials,
     _raise_invalid,
-    expm_batched,
 )
 from bayesbeam.physics.propagate_kernel import _uniform_kernel_py
 
 __all__ = [
-    "PropagationError",
     "eigenvalues",
-    "expm_batched",
     "numba_available",
     "response_times",
     "response_uniform",

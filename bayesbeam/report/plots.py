@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 import scipy.signal as ssig
-import scipy.stats as sstats
+
+from bayesbeam.stats.whiteness import autocorrelation, ljung_box
 
 __all__ = [
     "PlotError",
@@ -346,11 +347,12 @@ def residual_summary(
 ) -> dict[str, Any]:
     """RMS, autocorrelation and Ljung–Box whiteness test of a residual series.
 
-    Sample autocorrelations ``r_k`` at lags ``k = 1..h`` (in samples, mean removed)
-    and the Ljung–Box statistic ``Q = n (n + 2) Σ r_k² / (n − k)``, which for white
-    noise is χ² with ``h`` degrees of freedom (Ljung & Box 1978); the p-value is
-    ``chi2.sf(Q, h)``. Lags count samples, so for non-uniform stamps they are lags in
-    sample order (``lag_seconds`` gives their mean duration).
+    Sample autocorrelations ``r_k`` at lags ``k = 1..h`` (in samples, mean removed;
+    :func:`~bayesbeam.stats.whiteness.autocorrelation`) and the Ljung–Box statistic
+    ``Q = n (n + 2) Σ r_k² / (n − k)``, which for white noise is χ² with ``h`` degrees
+    of freedom (Ljung & Box 1978; :func:`~bayesbeam.stats.whiteness.ljung_box`); the
+    p-value is ``chi2.sf(Q, h)``. Lags count samples, so for non-uniform stamps they are
+    lags in sample order (``lag_seconds`` gives their mean duration).
 
     Parameters
     ----------
@@ -389,15 +391,9 @@ def residual_summary(
     h = min(20, n // 4) if max_lag is None else int(max_lag)
     if not 1 <= h < n:
         raise PlotError(f"max_lag must be in [1, {n - 1}], got {max_lag!r}")
-    x = r - np.mean(r)
-    c0 = float(np.dot(x, x))
     lags = np.arange(1, h + 1)
-    if c0 == 0.0:
-        acf = np.zeros(h)
-    else:
-        acf = np.array([np.dot(x[:-k], x[k:]) / c0 for k in lags])
-    q = float(n * (n + 2) * np.sum(acf**2 / (n - lags)))
-    p = float(sstats.chi2.sf(q, h))
+    acf = autocorrelation(r, h)[1:]
+    q, p = ljung_box(r, h)
     dt = (t[-1] - t[0]) / (n - 1)
     return {
         "n": int(n),

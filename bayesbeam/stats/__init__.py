@@ -2,7 +2,8 @@
 
 Statistics that know nothing of beams: prior families and prior sets, Gaussian
 likelihoods (i.i.d., AR(1)), emcee sampling with convergence checks and checkpoints,
-bridge-sampling / Laplace evidence, information criteria, evidence ranking.
+bridge-sampling / Laplace evidence, information criteria, evidence ranking,
+finite-difference derivatives, and whiteness tests of residual series.
 
 Layer: imports only :mod:`bayesbeam._util` (independent of :mod:`bayesbeam.physics`).
 """
@@ -14,6 +15,7 @@ _EXPORTS = {
     "ar1_loglik": ".likelihood",
     "ar1_pointwise": ".likelihood",
     "autocorr_time": ".convergence",
+    "autocorrelation": ".whiteness",
     "bic": ".criteria",
     "bridge_sampling": ".evidence",
     "burn_in": ".convergence",
@@ -23,6 +25,7 @@ _EXPORTS = {
     "CheckpointBackend": ".checkpoint",
     "CriteriaError": ".criteria",
     "DEFAULT_THRESHOLD": ".ranking",
+    "de_moves": ".sampling",
     "effective_sample_size": ".evidence",
     "elpd_difference": ".criteria",
     "ess_rhat": ".convergence",
@@ -30,6 +33,8 @@ _EXPORTS = {
     "EvidenceError": ".evidence",
     "EvidenceWarning": ".evidence",
     "failed_criteria": ".convergence",
+    "fd_gradient": ".numdiff",
+    "fd_hessian": ".numdiff",
     "group_loglik": ".criteria",
     "HalfNormal": ".families",
     "HessianNotNegativeDefiniteError": ".evidence",
@@ -38,6 +43,7 @@ _EXPORTS = {
     "init_walkers": ".sampling",
     "laplace_evidence": ".evidence",
     "LikelihoodError": ".likelihood",
+    "ljung_box": ".whiteness",
     "LogNormal": ".families",
     "logo": ".criteria",
     "LogUniform": ".families",
@@ -55,10 +61,12 @@ _EXPORTS = {
     "read_meta": ".checkpoint",
     "run_emcee": ".sampling",
     "SamplingError": ".checkpoint",
+    "stationary_ar1": ".likelihood",
     "Uniform": ".families",
     "WAIC": ".criteria",
     "waic": ".criteria",
     "WAICWarning": ".criteria",
+    "WhitenessError": ".whiteness",
     "write_meta": ".checkpoint",
 }
 

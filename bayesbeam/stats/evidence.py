@@ -34,6 +34,8 @@ from typing import Any
 import numpy as np
 from scipy.special import gammaln, logsumexp
 
+from bayesbeam.stats.numdiff import fd_hessian
+
 __all__ = [
     "Evidence",
     "EvidenceError",
@@ -125,39 +127,17 @@ class Evidence:
 # --------------------------------------------------------------------------- helpers
 
 
-def _autocov_fft(x: np.ndarray) -> np.ndarray:
-    """Biased autocovariance of each row along axis 1 (FFT, zero padded).
-
-    Parameters
-    ----------
-    x : ndarray, shape (m, n)
-        ``m`` series of length ``n``.
-
-    Returns
-    -------
-    ndarray, shape (m, n)
-        ``acov[k, t] = (1/n) Σ_s x̃[k, s] x̃[k, s+t]`` with ``x̃`` the series minus
-        its own mean.
-    """
-    n = x.shape[1]
-    x = x - x.mean(axis=1, keepdims=True)
-    nfft = 1 << (2 * n - 1).bit_length()
-    f = np.fft.rfft(x, n=nfft, axis=1)
-    return np.fft.irfft(f * np.conj(f), n=nfft, axis=1)[:, :n] / n
-
-
 def effective_sample_size(x: np.ndarray) -> float:
     """Multi-chain effective sample size for the mean of a scalar quantity.
 
-    The split-chain estimator of Vehtari et al. (2021, Bayesian Analysis 16,
-    667-718, eqs. 10-11, without rank normalisation; the same as ArviZ's
-    ``ess(method="mean")``): each walker is split in two halves, within-half
-    autocovariances are combined with the between-half variance (so walkers that
-    have not mixed, or a drifting chain, lower the ESS) and the autocorrelation sum
-    is truncated with Geyer's (1992) initial monotone positive sequence. For emcee
-    the walkers play the role of chains; their weak mutual dependence through the
-    ensemble moves is neglected (the calibration tests check that this is
-    harmless).
+    ArviZ's ``ess(method="mean")``: the split-chain estimator of Vehtari et al. (2021,
+    Bayesian Analysis 16, 667-718, eqs. 10-11, without rank normalisation). Each walker
+    is split in two halves, within-half autocovariances are combined with the
+    between-half variance (so walkers that have not mixed, or a drifting chain, lower
+    the ESS) and the autocorrelation sum is truncated with Geyer's (1992) initial
+    monotone positive sequence. For emcee the walkers play the role of chains; their
+    weak mutual dependence through the ensemble moves is neglected (the calibration
+    tests check that this is harmless).
 
     Parameters
     ----------
@@ -182,37 +162,12 @@ def effective_sample_size(x: np.ndarray) -> float:
     if not np.all(np.isfinite(x)):
         raise EvidenceError("ESS input contains non-finite values")
     if np.max(x) - np.min(x) < np.finfo(float).resolution:
-        return float(x.size)  # constant: no Monte Carlo variance at all
-    half = x.shape[0] // 2
-    chains = np.concatenate([x[:half].T, x[-half:].T], axis=0)  # (2 n_walkers, half)
-    m, n = chains.shape
-    acov = _autocov_fft(chains).mean(axis=0)  # mean within-chain autocovariance, (n,)
-    mean_var = acov[0] * n / (n - 1.0)
-    var_plus = mean_var * (n - 1.0) / n + np.var(chains.mean(axis=1), ddof=1)
-    rho = 1.0 - (mean_var - acov) / var_plus  # combined autocorrelation estimate
-    rho[0] = 1.0
-    # Geyer's initial positive sequence on sums of consecutive pairs ...
-    rho_hat = np.zeros(n)
-    rho_hat[:2] = rho[:2]
-    even, odd = 1.0, rho[1]
-    t = 1
-    while t < n - 3 and even + odd > 0.0:
-        even, odd = rho[t + 1], rho[t + 2]
-        if even + odd >= 0.0:
-            rho_hat[t + 1], rho_hat[t + 2] = even, odd
-        t += 2
-    max_t = t - 2
-    if even > 0.0:
-        rho_hat[max_t + 1] = even
-    # ... made monotone.
-    t = 1
-    while t <= max_t - 2:
-        if rho_hat[t + 1] + rho_hat[t + 2] > rho_hat[t - 1] + rho_hat[t]:
-            rho_hat[t + 1] = rho_hat[t + 2] = 0.5 * (rho_hat[t - 1] + rho_hat[t])
-        t += 2
-    tau = -1.0 + 2.0 * float(np.sum(rho_hat[: max_t + 1])) + float(rho_hat[max_t + 1])
-    tau = max(tau, 1.0 / math.log10(m * n))  # Stan's lower bound
-    return float(m * n / tau)
+        # Constant: no Monte Carlo variance at all. Checked here, not left to ArviZ,
+        # which would count only the split halves (one step fewer for odd n_steps).
+        return float(x.size)
+    import arviz  # deferred: importing ArviZ takes ~2 s
+
+    return float(arviz.ess(x.T, chain_axis=0, draw_axis=1, method="mean"))
 
 
 def _as_chain(samples: Any) -> np.ndarray:
@@ -531,38 +486,26 @@ def bridge_sampling(
 def _hessian_fd(
     log_prob: Callable[[np.ndarray], np.ndarray], u: np.ndarray, h: np.ndarray
 ) -> tuple[float, np.ndarray, np.ndarray, int]:
-    """Central-difference value, gradient and Hessian in one vectorised call.
+    """Value, gradient and Hessian by :func:`~bayesbeam.stats.numdiff.fd_hessian` (axes stencil).
 
-    Stencil: ``u``, ``u ± h_i e_i`` and ``u ± h_i e_i ± h_j e_j`` (i < j); the
-    truncation error is O(h²) times fourth derivatives (zero for quadratics).
+    ``log_prob`` is checked on the stencil (:func:`_eval`, and finite everywhere)
+    before any difference is taken. Returns also the number of points evaluated.
     """
-    d = u.size
-    eye = np.diag(h)
-    pts = [u[None, :], u + eye, u - eye]
-    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
-    for sgn_i, sgn_j in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-        if pairs:
-            pts.append(
-                np.array([u + sgn_i * eye[i] + sgn_j * eye[j] for i, j in pairs]).reshape(-1, d)
+    calls = 0
+
+    def checked(pts: np.ndarray) -> np.ndarray:
+        nonlocal calls
+        f = _eval(log_prob, pts, "Laplace stencil")
+        if not np.all(np.isfinite(f)):
+            raise EvidenceError(
+                "log_prob is -inf on the finite-difference stencil around u_map; the MAP is at "
+                "the edge of the support (Laplace is not applicable) or the step is too large"
             )
-    stencil = np.concatenate(pts, axis=0)
-    f = _eval(log_prob, stencil, "Laplace stencil")
-    if not np.all(np.isfinite(f)):
-        raise EvidenceError(
-            "log_prob is -inf on the finite-difference stencil around u_map; the MAP is at the "
-            "edge of the support (Laplace is not applicable) or the step is too large"
-        )
-    f0 = f[0]
-    fp, fm = f[1 : 1 + d], f[1 + d : 1 + 2 * d]
-    grad = (fp - fm) / (2.0 * h)
-    hess = np.diag((fp - 2.0 * f0 + fm) / h**2)
-    if pairs:
-        p = len(pairs)
-        base = 1 + 2 * d
-        fpp, fpm, fmp, fmm = (f[base + k * p : base + (k + 1) * p] for k in range(4))
-        for k, (i, j) in enumerate(pairs):
-            hess[i, j] = hess[j, i] = (fpp[k] - fpm[k] - fmp[k] + fmm[k]) / (4.0 * h[i] * h[j])
-    return float(f0), grad, hess, int(stencil.shape[0])
+        calls += pts.shape[0]
+        return f
+
+    f0, grad, hess = fd_hessian(checked, u, h)
+    return f0, grad, hess, calls
 
 
 def laplace_evidence(

@@ -36,11 +36,15 @@ log density of the first sample and the CONDITIONAL log densities
 or WAIC on them measure one-step-ahead predictive accuracy given the previous
 residual, not leave-one-out of the joint density (leaving one sample out of a
 correlated series would also change its neighbours' terms).
+
+Sampling: :func:`stationary_ar1` draws this AR(1) process (synthetic noise, replicated
+data of posterior-predictive checks), with the same lag correlations as the likelihood.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.signal as sps
 
 __all__ = [
     "LikelihoodError",
@@ -48,6 +52,7 @@ __all__ = [
     "ar1_pointwise",
     "iid_loglik",
     "iid_pointwise",
+    "stationary_ar1",
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -147,7 +152,7 @@ def _lag_powers(
         return phi, (1.0 - phi) * (1.0 + phi), ok
     t = np.asarray(times, dtype=float)
     if t.shape != (T,):
-        raise LikelihoodError(f"times must have shape ({T},) like the residuals, got {t.shape}")
+        raise LikelihoodError(f"times must have shape ({T},) like the series, got {t.shape}")
     steps = np.diff(t)
     if not np.all(np.isfinite(t)) or np.any(steps <= 0):
         raise LikelihoodError("times must be finite and strictly increasing (s)")
@@ -238,3 +243,84 @@ def ar1_loglik(
         Log-likelihoods; ``-inf`` outside the support.
     """
     return np.sum(ar1_pointwise(r, sigma, rho, times=times, dt_ref=dt_ref), axis=-1)
+
+
+def stationary_ar1(
+    z: np.ndarray,
+    rho: float | np.ndarray,
+    *,
+    times: np.ndarray | None = None,
+    dt_ref: float | None = None,
+    sd: float = 1.0,
+) -> np.ndarray:
+    """Stationary AR(1) series from standard normal draws: the noise model, sampled.
+
+    ``e_0 = sd z_0`` and ``e_t = phi_t e_{t-1} + sd sqrt(1 - phi_t²) z_t`` for t >= 1,
+    with ``phi_t`` the lag correlation of :func:`ar1_pointwise` (``rho`` on uniform
+    stamps, ``rho^((t_t - t_{t-1}) / dt_ref)`` with ``times``): every ``e_t`` has
+    standard deviation ``sd`` and ``corr(e_i, e_j) = rho^|i-j|`` (uniform stamps), the
+    process whose density :func:`ar1_loglik` is. With one correlation for every step the
+    recursion is the linear filter ``1 / (1 - phi B)`` (B the lag operator) and runs in
+    :func:`scipy.signal.lfilter` (the same products and sums as the loop, so the same
+    bits); otherwise it is stepped in time, vectorised over the series.
+
+    Parameters
+    ----------
+    z : array_like, shape (..., T)
+        Independent standard normal draws (from the caller's seeded Generator).
+    rho : float or array_like, broadcastable to z.shape[:-1]
+        Lag-one correlation of each series, in (-1, 1); with ``times``, the correlation
+        at lag ``dt_ref``, in [0, 1).
+    times : array_like, shape (T,), optional
+        Sample times in s, for non-uniform stamps.
+    dt_ref : float, optional
+        Reference lag in s for ``rho`` (default: median step of ``times``).
+    sd : float
+        Marginal standard deviation, units of the series.
+
+    Returns
+    -------
+    ndarray, shape z.shape
+        The series, units of ``sd``.
+
+    Raises
+    ------
+    LikelihoodError
+        For ``rho`` outside its range, ``sd <= 0``, or ``rho`` / ``times`` whose shapes
+        do not match ``z``.
+    """
+    z = np.asarray(z, dtype=float)
+    if z.ndim < 1:
+        raise LikelihoodError(f"z must have shape (..., T), got {z.shape}")
+    sd = float(sd)
+    if not (np.isfinite(sd) and sd > 0):
+        raise LikelihoodError(f"sd must be a positive marginal standard deviation, got {sd!r}")
+    rho = np.asarray(rho, dtype=float)
+    try:
+        rho = np.broadcast_to(rho, z.shape[:-1])
+    except ValueError:
+        raise LikelihoodError(
+            f"rho of shape {rho.shape} does not broadcast against the batch shape "
+            f"{z.shape[:-1]} of draws {z.shape}"
+        ) from None
+    T = z.shape[-1]
+    phi, _, ok = _lag_powers(rho, times, dt_ref, max(T, 1))
+    if not np.all(ok & np.isfinite(rho)):
+        support = "[0, 1) with times" if times is not None else "(-1, 1)"
+        raise LikelihoodError(f"rho must lie in {support} for a stationary AR(1)")
+    e = np.empty(z.shape)
+    if T == 0:
+        return e
+    # Innovations: the stationary start, then sd sqrt(1 - phi²) per step (so every
+    # sample has variance sd²).
+    x = np.empty(z.shape)
+    x[..., 0] = sd * z[..., 0]
+    x[..., 1:] = (sd * np.sqrt(1 - phi**2)) * z[..., 1:]
+    if times is None:
+        for i in np.ndindex(z.shape[:-1]):  # one filter per series (rho may differ)
+            e[i] = sps.lfilter([1.0], [1.0, -rho[i]], x[i])
+        return e
+    e[..., 0] = x[..., 0]
+    for t in range(1, T):  # time-varying phi: sequential, vectorised over the series
+        e[..., t] = phi[..., t - 1] * e[..., t - 1] + x[..., t]
+    return e

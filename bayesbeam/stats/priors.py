@@ -16,26 +16,22 @@ A TOML file overrides a model's default priors, e.g.::
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bayesbeam._util import read_toml
 from bayesbeam.stats.families import (
-    HalfNormal,
-    LogNormal,
-    LogUniform,
-    Normal,
     Prior,
     PriorError,
-    Uniform,
     prior_from_dict,
 )
 
-__all__ = ["PriorSet", "Prior", "PriorError", "prior_from_dict",
-           "HalfNormal", "LogNormal", "LogUniform", "Normal", "Uniform"]
+__all__ = [
+    "PriorSet",
+]
 
 
 class PriorSet(Mapping[str, Prior]):
@@ -365,13 +361,7 @@ class PriorSet(Mapping[str, Prior]):
             or invalid priors; the message names the file.
         """
         path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise PriorError(f"{path}: invalid TOML: {exc}") from None
-        except OSError as exc:
-            raise PriorError(f"cannot read prior file {path}: {exc}") from None
+        data = read_toml(path, what="prior file", error=PriorError)
         section = data.get(table)
         if section is None:
             if base is not None:

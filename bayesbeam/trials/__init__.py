@@ -9,7 +9,6 @@ Layer: above :mod:`bayesbeam.physics` and :mod:`bayesbeam.stats`.
 from bayesbeam._util import lazy_exports
 
 _EXPORTS = {
-    "autocorrelation": ".modal_id",
     "band_modal_estimate": ".modal_id",
     "damped_sinusoids": ".modal_id",
     "decay_rate_vs_amplitude": ".modal_id",
@@ -21,7 +20,6 @@ _EXPORTS = {
     "HRSHM": ".realdata",
     "hrshm_beam": ".realdata",
     "list_real_datasets": ".realdata",
-    "ljung_box": ".modal_id",
     "load_enes": ".realdata",
     "load_hrshm": ".realdata",
     "ModalEstimate": ".modal_id",
@@ -35,7 +33,6 @@ _EXPORTS = {
     "simulate_trial": ".synthetic",
     "spectral_peak": ".modal_id",
     "STANDARD_GRAVITY": ".trial",
-    "stationary_ar1": ".synthetic",
     "Trial": ".trial",
     "TrialError": ".trial",
     "uniform_grid": ".modal_id",

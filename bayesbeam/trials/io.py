@@ -35,13 +35,13 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bayesbeam._util import read_toml
 from bayesbeam.physics.beam import QUANTITIES, Beam, BeamError
 from bayesbeam.trials.trial import _SI_UNIT, Trial, TrialError, unit_factor
 
@@ -63,10 +63,6 @@ FORMAT_VERSION = 1
 # --------------------------------------------------------------------------------------
 # Reading
 # --------------------------------------------------------------------------------------
-def _file_sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
 def _read_csv(
     csv_path: Path, time_column: str, value_column: str, delimiter: str
 ) -> tuple[np.ndarray, np.ndarray, str]:
@@ -100,7 +96,9 @@ def _read_csv(
             f"could not read numbers from {csv_path}: {err}. Every data row needs a number "
             f"in columns {time_column!r} and {value_column!r} (delimiter {delimiter!r})"
         ) from None
-    return data[:, 0], data[:, 1], _file_sha256(raw)
+    # The digest of the bytes parsed here (not _util.file_sha256, whose second read of
+    # the file could see other bytes).
+    return data[:, 0], data[:, 1], hashlib.sha256(raw).hexdigest()
 
 
 def _need_str(table: Mapping[str, Any], key: str, where: str) -> str:
@@ -133,13 +131,7 @@ def read_trial(path: str | Path) -> Trial:
         end, or an invalid beam; the message says how to fix it.
     """
     path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise TrialError(f"trial file {path} not found") from None
-    except tomllib.TOMLDecodeError as err:
-        raise TrialError(f"{path} is not valid TOML: {err}") from None
+    doc = read_toml(path, what="trial file", error=TrialError)
     unknown = sorted(set(doc) - set(_TOP_KEYS))
     if unknown:
         raise TrialError(f"{path}: unknown top-level keys {unknown}; allowed: {list(_TOP_KEYS)}")

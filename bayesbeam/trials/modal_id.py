@@ -2,8 +2,8 @@
 
 Estimators that work on a measured (or predicted) signal alone, with no model:
 
-* :func:`uniform_grid` (resampling), :func:`autocorrelation` and the Ljung–Box
-  whiteness test :func:`ljung_box` (Ljung & Box 1978, Biometrika 65, 297-303);
+* :func:`uniform_grid` (resampling; the whiteness statistics are in
+  :mod:`bayesbeam.stats.whiteness`);
 * the Hann-windowed amplitude spectrum :func:`periodogram` and its refined peak
   :func:`spectral_peak`;
 * per mode, frequency and decay rate (:class:`ModalEstimate`) by band-pass + Hilbert
@@ -29,17 +29,17 @@ from typing import Any
 import numpy as np
 import scipy.optimize as sopt
 import scipy.signal as ssig
-import scipy.stats as sst
+
+from bayesbeam._util import finite_or_none
+from bayesbeam.stats.whiteness import autocorrelation
 
 __all__ = [
     "DecayAmplitude",
     "ModalEstimate",
     "SignatureError",
-    "autocorrelation",
     "band_modal_estimate",
     "damped_sinusoids",
     "decay_rate_vs_amplitude",
-    "ljung_box",
     "periodogram",
     "spectral_peak",
     "uniform_grid",
@@ -48,12 +48,6 @@ __all__ = [
 
 class SignatureError(ValueError):
     """Input to a signature computation is invalid; the message says how to fix it."""
-
-
-def _finite(v: Any) -> Any:
-    """Float, or None when not finite (strict JSON); shared with the signatures record."""
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 # --------------------------------------------------------------------------- basics
@@ -82,68 +76,6 @@ def uniform_grid(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.
     if np.max(np.abs(grid - t)) <= 1e-6 * dt:
         return grid, y.copy(), dt
     return grid, np.interp(grid, t, y), dt
-
-
-def autocorrelation(r: np.ndarray, max_lag: int) -> np.ndarray:
-    """Sample autocorrelation ``ρ̂_k = Σ (r_t - r̄)(r_{t+k} - r̄) / Σ (r_t - r̄)²``.
-
-    Parameters
-    ----------
-    r : ndarray, shape (T,)
-        Series (e.g. residuals).
-    max_lag : int
-        Largest lag, ``1 <= max_lag < T``.
-
-    Returns
-    -------
-    ndarray, shape (max_lag + 1,)
-        ``ρ̂_0 = 1, ρ̂_1, ..., ρ̂_max_lag`` (the biased estimator of Box & Jenkins).
-    """
-    r = np.asarray(r, dtype=float)
-    n = r.size
-    if not 1 <= max_lag < n:
-        raise SignatureError(f"max_lag must be in [1, {n - 1}], got {max_lag}")
-    x = r - r.mean()
-    denom = float(x @ x)
-    if denom == 0.0:
-        return np.concatenate(([1.0], np.zeros(max_lag)))
-    nfft = 1 << (2 * n - 1).bit_length()
-    f = np.fft.rfft(x, nfft)
-    ac = np.fft.irfft(f * np.conj(f), nfft)[: max_lag + 1]
-    return ac / denom
-
-
-def ljung_box(r: np.ndarray, lags: int, *, n_params: int = 0) -> tuple[float, float]:
-    """Ljung–Box portmanteau test of whiteness.
-
-    ``Q = n (n + 2) Σ_{k=1..h} ρ̂_k² / (n - k)``, approximately χ² with ``h - n_params``
-    degrees of freedom for a white series (Ljung & Box 1978).
-
-    Parameters
-    ----------
-    r : ndarray, shape (T,)
-        Series.
-    lags : int
-        Number of lags ``h``.
-    n_params : int
-        Fitted ARMA parameters to subtract from the degrees of freedom.
-
-    Returns
-    -------
-    q : float
-        The statistic.
-    p_value : float
-        ``P(χ²_{h - n_params} > Q)``; small values reject whiteness.
-    """
-    r = np.asarray(r, dtype=float)
-    n = r.size
-    dof = lags - n_params
-    if dof < 1:
-        raise SignatureError(f"lags ({lags}) must exceed n_params ({n_params})")
-    rho = autocorrelation(r, lags)[1:]
-    k = np.arange(1, lags + 1)
-    q = float(n * (n + 2) * np.sum(rho**2 / (n - k)))
-    return q, float(sst.chi2.sf(q, dof))
 
 
 def periodogram(
@@ -515,12 +447,12 @@ class DecayAmplitude:
         """
         return {
             "frequency_hz": self.frequency,
-            "excess": _finite(self.excess),
-            "excess_se": _finite(self.excess_se),
-            "rate0": _finite(self.rate0),
-            "amplitude0": _finite(self.amplitude0),
-            "window_amplitude": [_finite(v) for v in self.amplitude],
-            "window_rate": [_finite(v) for v in self.rate],
+            "excess": finite_or_none(self.excess),
+            "excess_se": finite_or_none(self.excess_se),
+            "rate0": finite_or_none(self.rate0),
+            "amplitude0": finite_or_none(self.amplitude0),
+            "window_amplitude": [finite_or_none(v) for v in self.amplitude],
+            "window_rate": [finite_or_none(v) for v in self.rate],
         }
 
 

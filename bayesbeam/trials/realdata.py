@@ -32,7 +32,6 @@ estimate the modal amplitudes. Times are kept as recorded (not shifted to 0).
 
 from __future__ import annotations
 
-import hashlib
 import math
 import re
 from dataclasses import dataclass, field
@@ -41,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam._util import file_sha256
 from bayesbeam.physics.beam import Beam
 from bayesbeam.trials.trial import STANDARD_GRAVITY, Trial
 
@@ -63,7 +63,7 @@ DEFAULT_ROOT = "../shared/data/real"
 ENES = "enes-alu-release"
 HRSHM = "hrshm-steel-impulse"
 
-_REPO = Path(__file__).resolve().parents[1]
+_REPO = Path(__file__).resolve().parents[2]
 
 # Documented in enes-alu-release/PROVENANCE.md ("Checksums", sha256 first 16 hex digits).
 _ENES_SHA256_PREFIX = {
@@ -117,10 +117,6 @@ def resolve_root(root: str | Path = DEFAULT_ROOT) -> Path:
         "shipped in the repository; place them at ../shared/data/real beside the repository "
         "root or pass root= to the loader"
     )
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 # --------------------------------------------------------------------------------------
@@ -371,7 +367,7 @@ def load_enes(
     i_peak = int(np.argmax(np.abs(np.where(early, a_g, 0.0))))
     t_peak = float(t[i_peak])
     mask = _window_after(t, t_peak, settle, duration, label)
-    digest = _sha256(path)
+    digest = file_sha256(path)
     deflection_cm = 4 if "4cmID" in path.parent.name else 2
     f1, f2 = _ENES_DOCUMENTED_HZ.get(length_cm, (math.nan, math.nan))
     meta: dict[str, Any] = {
@@ -518,7 +514,7 @@ def load_hrshm(
     a_g = a_g - baseline_g
     label = f"{HRSHM}/timeseries_data.lvm"
     mask = _window_after(t, t_peak, settle, duration, label)
-    digest = _sha256(path)
+    digest = file_sha256(path)
     meta: dict[str, Any] = {
         "dataset": HRSHM,
         "record": "timeseries_data.lvm",

@@ -12,7 +12,7 @@ from bayesbeam.physics.models import parse_model
 from bayesbeam.trials.io import write_trial
 from bayesbeam.trials.trial import Trial
 
-__all__ = ["simulate_signal", "simulate_trial", "stationary_ar1"]
+__all__ = ["simulate_signal", "simulate_trial"]
 
 
 def simulate_signal(
@@ -151,33 +151,3 @@ def simulate_trial(
     if out is not None:
         write_trial(trial, out)
     return trial
-
-
-def stationary_ar1(z: np.ndarray, rho: float) -> np.ndarray:
-    """Stationary AR(1) series with unit marginal variance from standard normal draws.
-
-    ``e_0 = z_0``, ``e_k = ρ e_{k-1} + sqrt(1 - ρ²) z_k``: every ``e_k`` has variance 1
-    and ``corr(e_k, e_{k+j}) = ρ^j`` (the noise model of
-    :func:`bayesbeam.stats.likelihood.ar1_loglik` on uniform stamps).
-
-    Parameters
-    ----------
-    z : ndarray, shape (T,)
-        Independent standard normal draws (from the caller's seeded Generator).
-    rho : float
-        Lag-1 correlation, ``-1 < rho < 1``.
-
-    Returns
-    -------
-    ndarray, shape (T,)
-    """
-    z = np.asarray(z, dtype=float)
-    if not (np.isfinite(rho) and -1 < rho < 1):
-        raise ValueError(f"rho must lie in (-1, 1) for a stationary AR(1), got {rho!r}")
-    e = np.empty(z.size)
-    if z.size == 0:
-        return e
-    e[0] = z[0]
-    for i in range(1, z.size):
-        e[i] = rho * e[i - 1] + np.sqrt(1 - rho**2) * z[i]
-    return e

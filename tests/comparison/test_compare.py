@@ -28,20 +28,13 @@ import pytest
 from scipy import stats
 
 from bayesbeam.cli import compare as cli_compare
-from bayesbeam.comparison.compare import (
-    DEFAULT_THRESHOLD,
-    CompareError,
-    Comparison,
-    PriorReweight,
-    _probabilities,
-    _rank,
-    compare,
-    evaluate,
-    prior_reweight,
-    prior_sensitivity,
-)
+from bayesbeam.comparison.compare import Comparison, _probabilities, _rank, compare
+from bayesbeam.comparison.scoring import CompareError, evaluate
+from bayesbeam.comparison.sensitivity import PriorReweight, prior_reweight, prior_sensitivity
 from bayesbeam.physics.beam import Beam
-from bayesbeam.stats.priors import LogUniform, PriorSet, Uniform
+from bayesbeam.stats.families import LogUniform, Uniform
+from bayesbeam.stats.priors import PriorSet
+from bayesbeam.stats.ranking import DEFAULT_THRESHOLD
 from bayesbeam.trials.io import write_trial
 from bayesbeam.trials.synthetic import simulate_signal, simulate_trial
 

@@ -45,11 +45,13 @@ import pytest
 import scipy.optimize as sopt
 
 from bayesbeam.cli.diagnose import register
-from bayesbeam.diagnosis.diagnose import CATALOGUE, DiagnoseError, diagnose
+from bayesbeam.diagnosis.diagnose import CATALOGUE, diagnose
+from bayesbeam.diagnosis.search import DiagnoseError
 from bayesbeam.inference.problem import BETA1
 from bayesbeam.physics.beam import Beam
+from bayesbeam.stats.likelihood import stationary_ar1
 from bayesbeam.trials.io import write_trial
-from bayesbeam.trials.synthetic import simulate_signal, stationary_ar1
+from bayesbeam.trials.synthetic import simulate_signal
 from bayesbeam.trials.trial import Trial
 
 L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import bayesbeam.inference.fit as fitmod
-from bayesbeam.inference.fit import FIT_SETTINGS, SamplerCoordinates, fit, fit_settings
+from bayesbeam.inference.fit import SamplerCoordinates, fit
 from bayesbeam.inference.problem import BETA1, Problem
 from bayesbeam.physics.beam import Beam
 from bayesbeam.report.plots import posterior_predictive, residual_summary
@@ -188,15 +188,6 @@ def test_unknown_sampler_option_is_an_error(base):
     tr = base[0]
     with pytest.raises(ValueError, match="sampler_options"):
         fit(tr, "viscous", n_elements=NE, sampler_options={"tau_tol": 1})
-
-
-def test_fit_settings_take_fits_defaults_and_reject_unknown_names():
-    full = fit_settings({"max_steps": 50}, caller="evaluate")
-    assert tuple(full) == FIT_SETTINGS
-    assert full == {"n_elements": 16, "initial": "release", "nwalkers": None,
-                    "target_ess": 1000.0, "max_steps": 50, "min_steps": 300}
-    with pytest.raises(TypeError, match=r"evaluate\(\) got an unexpected keyword .*'max_step'"):
-        fit_settings({"max_step": 50}, caller="evaluate")
 
 
 def _cli(argv):

@@ -10,7 +10,7 @@ from scipy import integrate, stats
 
 from bayesbeam.inference.problem import BETA1, Problem, default_priors, reference_modulus
 from bayesbeam.physics.beam import Beam
-from bayesbeam.stats.priors import LogUniform, Normal, Uniform
+from bayesbeam.stats.families import LogUniform, Normal, Uniform
 from bayesbeam.trials.synthetic import simulate_signal, simulate_trial
 from bayesbeam.trials.trial import Trial
 

@@ -12,7 +12,8 @@ import pytest
 from scipy import stats
 
 from bayesbeam.inference.results import FitResult, ResultError, make_provenance
-from bayesbeam.stats.priors import LogNormal, LogUniform, Normal, PriorSet
+from bayesbeam.stats.families import LogNormal, LogUniform, Normal
+from bayesbeam.stats.priors import PriorSet
 from bayesbeam.stats.sampling import Chain
 
 NSTEPS, NWALKERS = 400, 20

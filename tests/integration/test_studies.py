@@ -36,11 +36,12 @@ def _sha(p: Path) -> str:
 
 
 def test_make_data_reproduces_the_shipped_files(make_data, tmp_path):
-    # TOML files (beam, truth, settings) come back byte for byte. The CSV values are
-    # written with 6 decimals; the forward model's eigensolver differs between
-    # numpy/scipy/LAPACK builds at ~1e-8 relative (phase over 5 s), which flips the
-    # last written digit of some samples: each value must agree to one unit in that
-    # digit (1e-6, plus 1e-12 for the decimal parsing), the header and time column exactly.
+    # TOML files (beam, truth, settings) come back byte for byte. The CSV values (mm,
+    # 6 decimals) differ between numpy/scipy/LAPACK builds in the last one or two
+    # written digits (seen: 2e-6 mm with numpy 2.5 / scipy 1.18 against the builds that
+    # wrote data/): each value must agree to 1e-3 of the white noise sd in truth.toml
+    # (8e-6 mm), invisible to any fit; header and time column exactly.
+    atol_mm = 1e-3 * tomllib.loads((DATA / "truth.toml").read_text())["noise"]["white_sd"] * 1e3
     written = make_data.main(tmp_path, verbose=False)
     assert len(written) == 31  # 15 TOML + 15 CSV + truth.toml
     for p in written:
@@ -53,7 +54,7 @@ def test_make_data_reproduces_the_shipped_files(make_data, tmp_path):
         a = np.loadtxt(p, delimiter=",", skiprows=1)
         b = np.loadtxt(ref, delimiter=",", skiprows=1)
         np.testing.assert_array_equal(a[:, 0], b[:, 0], err_msg=p.name)
-        np.testing.assert_allclose(a[:, 1], b[:, 1], rtol=0, atol=1e-6 + 1e-12, err_msg=p.name)
+        np.testing.assert_allclose(a[:, 1], b[:, 1], rtol=0, atol=atol_mm, err_msg=p.name)
 
 
 def test_shipped_data_is_small_and_licensed():

@@ -15,12 +15,11 @@ from bayesbeam.jobs.demo import (
     DEMO_SETTINGS,
     DemoError,
     Replication,
-    beam_summary,
     find_data,
-    format_table,
     list_trials,
     run_replication,
 )
+from bayesbeam.jobs.summary import beam_summary, format_table
 
 # Tiny settings: a few seconds per fit; the numbers are not converged posteriors.
 TINY = {**DEMO_SETTINGS, "n_elements": 6, "nwalkers": 16, "target_ess": 10.0, "max_steps": 60,

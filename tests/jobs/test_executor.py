@@ -8,17 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from bayesbeam.jobs.executor import (
-    DEFAULT_SETTINGS,
-    ExecutorError,
-    FitTask,
-    fit_tasks,
-    load_score,
-    make_executor,
-    map_tasks,
-    run_fits,
-    task_key,
-)
+from bayesbeam.jobs.executor import load_score, make_executor, map_tasks, run_fits
+from bayesbeam.jobs.tasks import DEFAULT_SETTINGS, ExecutorError, FitTask, fit_tasks, task_key
 from bayesbeam.physics.beam import Beam
 from bayesbeam.trials.synthetic import simulate_trial
 

@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import eigh, expm
 
 from bayesbeam.physics import propagate as pg
-from bayesbeam.physics.propagate import PropagationError
+from bayesbeam.physics.expm import PropagationError, expm_batched
 
 DT = 0.003906  # s, the benchmark's sample interval (256 Hz)
 
@@ -126,7 +126,7 @@ def test_state_matrix_unchecked_lets_bad_sets_reach_the_mask():
 def test_expm_matches_scipy_on_stiff_state_matrices():
     A, _ = stiff_batch(6, seed=2)
     for dt in (DT / 64, DT / 8, DT):  # ‖A dt‖₁ from ~1e2 to ~8e3 (the benchmark's)
-        E = pg.expm_batched(A * dt)
+        E = expm_batched(A * dt)
         R = np.array([expm(a * dt) for a in A])
         # Both are backward stable; each squaring doubles the rounding error of an
         # (almost) norm-preserving exponential, so each has an error ≈ 2^s·u (relative
@@ -141,7 +141,7 @@ def test_expm_matches_scipy_on_mild_matrices():
     mats = [rng.standard_normal((8, 8)) * scale for scale in (1e-6, 1e-3, 0.1, 1.0, 3.0)]
     mats.append(np.zeros((8, 8)))
     A = np.array(mats)
-    E = pg.expm_batched(A)
+    E = expm_batched(A)
     R = np.array([expm(a) for a in A])
     # Few or no squarings: both at a few u·‖e^A‖ (non-normal random matrices; 1e-12 bound).
     assert rel_fro(E, R).max() <= 1e-12
@@ -152,10 +152,10 @@ def test_expm_huge_norm_is_prescaled():
     # ‖A‖ ~ 1e12 goes through the power-of-two pre-scaling; exp(diag(-1e12, 0)) = diag(0, 1)
     # exactly in double precision (e^-1e12 underflows).
     A = np.diag([-1e12, 0.0])[None]
-    np.testing.assert_allclose(pg.expm_batched(A)[0], np.diag([0.0, 1.0]), atol=1e-15)
+    np.testing.assert_allclose(expm_batched(A)[0], np.diag([0.0, 1.0]), atol=1e-15)
     with pytest.raises(PropagationError, match="not finite"):
-        pg.expm_batched(np.full((1, 2, 2), 1e300))  # would need > 128 squarings
-    E, valid = pg.expm_batched(
+        expm_batched(np.full((1, 2, 2), 1e300))  # would need > 128 squarings
+    E, valid = expm_batched(
         np.array([np.eye(2), np.full((2, 2), 1e300), [[0, np.nan], [0, 0]], 800 * np.eye(2)]),
         return_valid=True,
     )
@@ -165,13 +165,13 @@ def test_expm_huge_norm_is_prescaled():
 
 def test_expm_rejects_bad_input():
     with pytest.raises(PropagationError, match="not finite"):
-        pg.expm_batched(np.array([[[0.0, np.inf], [0.0, 0.0]]]))
+        expm_batched(np.array([[[0.0, np.inf], [0.0, 0.0]]]))
     with pytest.raises(PropagationError, match="square"):
-        pg.expm_batched(np.zeros((1, 2, 3)))
+        expm_batched(np.zeros((1, 2, 3)))
     with pytest.raises(PropagationError, match="3-D"):
-        pg.expm_batched(np.zeros((2, 2)))
+        expm_batched(np.zeros((2, 2)))
     with pytest.raises(PropagationError, match="real"):
-        pg.expm_batched(np.zeros((1, 2, 2), dtype=complex))
+        expm_batched(np.zeros((1, 2, 2), dtype=complex))
 
 
 # --------------------------------------------------------------------------- analytic decay

@@ -1,5 +1,7 @@
 """Noise models against scipy's densities (brute force, written by others)."""
 
+import math
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -10,6 +12,7 @@ from bayesbeam.stats.likelihood import (
     ar1_pointwise,
     iid_loglik,
     iid_pointwise,
+    stationary_ar1,
 )
 
 # Agreement with scipy: both sides are sums of ~T well-conditioned float64 terms of size
@@ -145,3 +148,61 @@ def test_bad_shapes_raise():
         ar1_loglik(np.zeros((1, 5)), 1.0, 0.5, times=np.arange(4.0))
     with pytest.raises(LikelihoodError, match="strictly increasing"):
         ar1_loglik(np.zeros((1, 3)), 1.0, 0.5, times=np.array([0.0, 1.0, 1.0]))
+
+
+
+# ----------------------------------------------------------------------------- sampling
+
+
+def test_stationary_ar1_has_unit_variance_and_geometric_autocorrelation():
+    # Closed form of a stationary AR(1): var 1, corr(lag j) = rho^j. Tolerances: 4 sd of
+    # the sample estimates over T draws: var(s²) ≈ 2 (1 + ρ²) / ((1 - ρ²) T), and
+    # Bartlett's var(r_j) ≈ [(1 + ρ²)(1 - ρ^2j) / (1 - ρ²) - 2 j ρ^2j] / T.
+    rho, n = 0.8, 200_000
+    e = stationary_ar1(np.random.default_rng(11).standard_normal(n), rho)
+    sd_var = math.sqrt(2 * (1 + rho**2) / ((1 - rho**2) * n))
+    assert np.var(e) == pytest.approx(1.0, abs=4 * sd_var)
+    for lag in (1, 2, 5):
+        r2j = rho ** (2 * lag)
+        sd_r = math.sqrt(((1 + rho**2) * (1 - r2j) / (1 - rho**2) - 2 * lag * r2j) / n)
+        assert np.corrcoef(e[:-lag], e[lag:])[0, 1] == pytest.approx(rho**lag, abs=4 * sd_r)
+    with pytest.raises(ValueError, match="stationary"):
+        stationary_ar1(np.zeros(3), 1.0)
+    with pytest.raises(LikelihoodError, match=r"\[0, 1\) with times"):
+        stationary_ar1(np.zeros(3), -0.2, times=np.arange(3.0))
+    with pytest.raises(LikelihoodError, match="does not broadcast"):
+        stationary_ar1(np.zeros((2, 3)), [0.1, 0.2, 0.3])
+
+
+def _ar1_loop(z, phi, sd):
+    """The recursion written out: e_0 = sd z_0, e_t = phi_t e_{t-1} + sd sqrt(1-phi_t²) z_t."""
+    e = np.empty_like(z)
+    e[..., 0] = sd * z[..., 0]
+    innov = sd * np.sqrt(1 - phi**2)
+    for t in range(1, z.shape[-1]):
+        e[..., t] = phi[..., t - 1] * e[..., t - 1] + innov[..., t - 1] * z[..., t]
+    return e
+
+
+def test_stationary_ar1_is_the_recursion_and_the_likelihoods_process():
+    rng = np.random.default_rng(4)
+    z = rng.standard_normal((3, 400))
+    rho = np.array([0.0, -0.7, 0.95])
+    # Uniform stamps: the filter runs the same products and sums as the loop, bit for bit.
+    phi = np.broadcast_to(rho[:, None], (3, 399))
+    np.testing.assert_array_equal(stationary_ar1(z, rho, sd=2e-5), _ar1_loop(z, phi, 2e-5))
+    # Non-uniform stamps: phi_t = rho^(Δt_t / dt_ref) (dt_ref the median step), as scored by
+    # ar1_pointwise; exp(log) against pow differ by a few ulp.
+    times = np.cumsum(rng.uniform(0.5, 1.5, 400)) / 512
+    rho = np.array([0.0, 0.7, 0.95])
+    steps = np.diff(times)
+    phi = rho[:, None] ** (steps / np.median(steps))
+    np.testing.assert_allclose(stationary_ar1(z, rho, times=times), _ar1_loop(z, phi, 1.0),
+                               rtol=1e-13, atol=1e-13)
+    # Its innovations are what the likelihood conditions on: e_t - phi_t e_{t-1} has
+    # variance 1 - phi_t², so the pointwise terms are those of the standard normal z.
+    e = stationary_ar1(z, rho, times=times)
+    lp = ar1_pointwise(e, 1.0, rho, times=times)
+    var = 1 - phi**2
+    np.testing.assert_allclose(lp[:, 1:], stats.norm.logpdf(z[:, 1:]) - 0.5 * np.log(var),
+                               rtol=1e-9, atol=1e-9)

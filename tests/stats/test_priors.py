@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from bayesbeam.stats.priors import (
+from bayesbeam.stats.families import (
     HalfNormal,
     LogNormal,
     LogUniform,
     Normal,
     PriorError,
-    PriorSet,
     Uniform,
     prior_from_dict,
 )
+from bayesbeam.stats.priors import PriorSet
 
 # (prior, scipy reference distribution of the physical value)
 CASES = [
@@ -209,7 +209,7 @@ def test_priorset_overrides_and_errors(tmp_path):
         PriorSet.from_toml(bad, PS)
     broken = tmp_path / "broken.toml"
     broken.write_text("[priors.E\n", encoding="utf-8")
-    with pytest.raises(PriorError, match="invalid TOML"):
+    with pytest.raises(PriorError, match="prior file .*broken.toml is not valid TOML"):
         PriorSet.from_toml(broken, PS)
     with pytest.raises(PriorError, match="cannot read"):
         PriorSet.from_toml(tmp_path / "missing.toml", PS)

@@ -13,11 +13,12 @@ import emcee
 import numpy as np
 import pytest
 
-from bayesbeam.stats.priors import LogUniform, Normal, PriorSet
+from bayesbeam.stats.checkpoint import SamplingError
+from bayesbeam.stats.families import LogUniform, Normal
+from bayesbeam.stats.priors import PriorSet
 from bayesbeam.stats.sampling import (
     Chain,
     NotConvergedWarning,
-    SamplingError,
     init_walkers,
     make_log_prob,
     run_emcee,

@@ -10,7 +10,7 @@ import pytest
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import ForwardError
 from bayesbeam.trials.io import read_trial
-from bayesbeam.trials.synthetic import simulate_signal, simulate_trial, stationary_ar1
+from bayesbeam.trials.synthetic import simulate_signal, simulate_trial
 
 L = 0.3048
 E = 6.2e10
@@ -122,18 +122,3 @@ def test_bad_settings_raise(kwargs, match):
     with pytest.raises(ForwardError, match=match):
         simulate_trial(BEAM, "viscous", {"gamma": GAMMA}, **kwargs)
 
-
-def test_stationary_ar1_has_unit_variance_and_geometric_autocorrelation():
-    # Closed form of a stationary AR(1): var 1, corr(lag j) = rho^j. Tolerances: 4 sd of
-    # the sample estimates over T draws: var(s²) ≈ 2 (1 + ρ²) / ((1 - ρ²) T), and
-    # Bartlett's var(r_j) ≈ [(1 + ρ²)(1 - ρ^2j) / (1 - ρ²) - 2 j ρ^2j] / T.
-    rho, n = 0.8, 200_000
-    e = stationary_ar1(np.random.default_rng(11).standard_normal(n), rho)
-    sd_var = math.sqrt(2 * (1 + rho**2) / ((1 - rho**2) * n))
-    assert np.var(e) == pytest.approx(1.0, abs=4 * sd_var)
-    for lag in (1, 2, 5):
-        r2j = rho ** (2 * lag)
-        sd_r = math.sqrt(((1 + rho**2) * (1 - r2j) / (1 - rho**2) - 2 * lag * r2j) / n)
-        assert np.corrcoef(e[:-lag], e[lag:])[0, 1] == pytest.approx(rho**lag, abs=4 * sd_r)
-    with pytest.raises(ValueError, match="stationary"):
-        stationary_ar1(np.zeros(3), 1.0)
