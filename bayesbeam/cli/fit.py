@@ -189,7 +189,7 @@ def _observation_groups(problem: Any, result: Any, rng: Any) -> dict[str, Any]:
     import numpy as np
 
     from bayesbeam.inference.fit import thin_result
-    from bayesbeam.report.plots import predictive_draws
+    from bayesbeam.inference.predictive import predictive_draws
 
     T = problem.data.size
     ndim = result.chain.ndim
@@ -206,7 +206,7 @@ def _observation_groups(problem: Any, result: Any, rng: Any) -> dict[str, Any]:
     steps = max(1, min(c.nsteps, PPC_DRAWS // c.nwalkers))
     pick = np.linspace(0, c.nsteps - 1, steps).round().astype(int)
     Up = c.samples[pick].reshape(-1, ndim)
-    _, y_rep = predictive_draws(problem, Up, rng)
+    _, _, y_rep = predictive_draws(problem, Up, rng)
     pp = y_rep.reshape(steps, c.nwalkers, T).swapaxes(0, 1)
     return {"thin": thin, "log_likelihood": ll, "posterior_predictive": pp}
 
@@ -229,9 +229,10 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from bayesbeam.inference.fit import fit
+    from bayesbeam.inference.predictive import posterior_predictive
     from bayesbeam.inference.problem import Problem, default_priors
     from bayesbeam.physics.models import parse_model
-    from bayesbeam.report.plots import plot_fit, plot_residual_spectrum, posterior_predictive
+    from bayesbeam.report.plots import plot_fit, plot_residual_spectrum
     from bayesbeam.stats.priors import PriorSet
     from bayesbeam.stats.sampling import NotConvergedWarning
 
@@ -287,9 +288,9 @@ def run(args: argparse.Namespace) -> int:
     )
     result.plot_corner(outdir / "corner.png", truths=_truths(trial, problem))
     result.plot_trace(outdir / "trace.png")
-    draws = posterior_predictive(problem, result, PPC_DRAWS, rng)
-    plot_fit(trial, problem, result, outdir / "fit.png", rng=rng, draws=draws)
-    resid = np.asarray(trial.values) - np.median(draws[0], axis=0)
+    _, y_model, y_rep = posterior_predictive(problem, result, PPC_DRAWS, rng)
+    plot_fit(trial, problem, result, outdir / "fit.png", rng=rng, draws=(y_model, y_rep))
+    resid = np.asarray(trial.values) - np.median(y_model, axis=0)
     plot_residual_spectrum(trial, resid, outdir / "residual_spectrum.png",
                            mode_freqs_hz=_mode_freqs(problem, result))
     payload["total_seconds"] = time.perf_counter() - t_start

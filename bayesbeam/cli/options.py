@@ -100,7 +100,7 @@ def add_elements_option(
     parser: argparse.ArgumentParser,
     help: str | None = f"Hermite elements (default {FIT_DEFAULTS.n_elements})",
 ) -> None:
-    """Add ``--elements`` (number of Hermite beam elements, default ``FIT_DEFAULTS``'s).
+    """Add ``--elements`` (Hermite beam elements, default ``FIT_DEFAULTS.n_elements``).
 
     Parameters
     ----------

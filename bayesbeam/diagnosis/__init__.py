@@ -18,7 +18,6 @@ _EXPORTS = {
     "ModeComparison": ".signatures",
     "model_modes": ".signatures",
     "plot_signatures": ".signatures",
-    "posterior_predictive": ".signatures",
     "Round": ".records",
     "SCREEN_THRESHOLD": ".diagnose",
     "signature_support": ".diagnose",

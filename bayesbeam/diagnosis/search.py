@@ -378,7 +378,7 @@ def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
     linear damping coefficients scaled by 1/(1 + factor) so that the total stays near
     the measured one (a linear fit has already absorbed the amplitude-dependent part);
     and, when the data's decay rate changes with amplitude beyond 2 standard errors
-    (:func:`bayesbeam.diagnosis.signatures.decay_rate_vs_amplitude`: rate σ0 (1 + c) at the first
+    (:func:`bayesbeam.trials.modal_id.decay_rate_vs_amplitude`: rate σ0 (1 + c) at the first
     sample), drag giving c σ0/ω1 with the linear damping giving σ0.
     """
     fwd = pb.forward

@@ -12,9 +12,9 @@ frozen :class:`Signatures` record:
   ``(r_t - ρ r_{t-1})`` (the model's own white part), else to ``r``;
 * the residual and data spectra, with the model's modal frequencies;
 * per mode, the frequency and decay rate measured from the DATA and, by the same
-  band-pass + Hilbert method (:func:`~bayesbeam.trials.modal_id.band_modal_estimate`), from
-  the model's noise-free prediction: filter bias then cancels in the comparison. The modal
-  damping ratio of mode k is ``ζ_k = σ_k / sqrt(σ_k² + ω_dk²)``;
+  damped-sinusoid fit (:func:`~bayesbeam.trials.modal_id.damped_sinusoids`), from the
+  model's noise-free prediction: the estimator's bias then cancels in the comparison. The
+  modal damping ratio of mode k is ``ζ_k = σ_k / sqrt(σ_k² + ω_dk²)``;
 * the ratio f2/f1 of data and model (a tip mass raises it, a root spring raises it
   little, a stiffness falling toward the tip lowers it: physics.md §3 and
   :mod:`bayesbeam.diagnosis.diagnose`), and ζ2/ζ1 (viscous damping falls with frequency, KV
@@ -24,7 +24,9 @@ frozen :class:`Signatures` record:
   rate, quadratic air drag faster at large amplitude, dry friction faster at small
   amplitude;
 * the posterior-predictive coverage of the data: the fraction of samples inside the
-  central 50 % and 90 % intervals of the predictive distribution (model + noise).
+  central 50 % and 90 % intervals of the predictive distribution (model + noise, draws
+  evenly spaced along the chain:
+  :func:`~bayesbeam.inference.predictive.posterior_predictive`).
 
 :func:`plot_signatures` draws them on a :class:`matplotlib.figure.Figure` (object API,
 no pyplot state).
@@ -43,37 +45,23 @@ from typing import Any
 import numpy as np
 
 from bayesbeam._util import finite_or_none
+from bayesbeam.inference.predictive import posterior_predictive
 from bayesbeam.stats.whiteness import autocorrelation, ljung_box
-
-# Re-exported: these names were defined here first and are imported from here.
 from bayesbeam.trials.modal_id import (
     DecayAmplitude,
     ModalEstimate,
-    SignatureError,
-    band_modal_estimate,
     damped_sinusoids,
     decay_rate_vs_amplitude,
     periodogram,
-    spectral_peak,
     uniform_grid,
 )
 
 __all__ = [
-    "DecayAmplitude",
-    "ModalEstimate",
     "ModeComparison",
-    "SignatureError",
     "Signatures",
-    "band_modal_estimate",
     "compute_signatures",
-    "damped_sinusoids",
-    "decay_rate_vs_amplitude",
     "model_modes",
-    "periodogram",
     "plot_signatures",
-    "posterior_predictive",
-    "spectral_peak",
-    "uniform_grid",
 ]
 
 
@@ -109,62 +97,6 @@ def model_modes(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lin.modes(np.array([vals[n] for n in lin.param_names]))
 
 
-def posterior_predictive(
-    problem: Any, result: Any, *, n_draws: int = 200, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Draws of the model signal and of replicated data from the posterior.
-
-    Parameters
-    ----------
-    problem : Problem
-    result : FitResult
-        Posterior samples of the same model.
-    n_draws : int
-        Number of posterior draws used (evenly spaced over the flattened chain).
-    rng : numpy.random.Generator
-        Source of the replicated noise.
-
-    Returns
-    -------
-    x : ndarray, shape (S, ndim)
-        Physical values of the valid draws.
-    y : ndarray, shape (S, T)
-        Noise-free model signal (offset included).
-    y_rep : ndarray, shape (S, T)
-        ``y`` plus noise drawn from the noise model: i.i.d. N(0, σ²), or the
-        stationary AR(1) with marginal sd σ and lag-one correlation ρ at the median
-        step (``ρ^(Δt/dt_ref)`` between stamps Δt apart, as in the likelihood).
-    """
-    if tuple(result.names) != tuple(problem.names):
-        raise SignatureError(
-            f"result parameters {list(result.names)} do not match the problem's "
-            f"{list(problem.names)}; pass the Problem of the fitted model"
-        )
-    U = np.asarray(result.chain.samples).reshape(-1, problem.ndim)
-    idx = np.unique(np.linspace(0, U.shape[0] - 1, min(n_draws, U.shape[0])).astype(int))
-    X = problem.theta(U[idx])
-    res = problem.predict(X)
-    X, y = X[res.valid], res.y[res.valid]
-    if y.shape[0] == 0:
-        raise SignatureError("no posterior draw gives a valid model signal")
-    names = list(problem.names)
-    sigma = X[:, names.index("sigma")]
-    S, T = y.shape
-    z = rng.standard_normal((S, T))
-    if "rho" in names:
-        rho = X[:, names.index("rho")]
-        steps = np.diff(problem.trial.times)
-        phi = rho[:, None] ** (steps / np.median(steps))[None, :]
-        e = np.empty((S, T))
-        e[:, 0] = z[:, 0]
-        for t in range(1, T):
-            e[:, t] = phi[:, t - 1] * e[:, t - 1] + np.sqrt(1 - phi[:, t - 1] ** 2) * z[:, t]
-        noise = sigma[:, None] * e
-    else:
-        noise = sigma[:, None] * z
-    return X, y, y + noise
-
-
 # --------------------------------------------------------------------------- the record
 
 
@@ -179,8 +111,9 @@ class ModeComparison:
     f_model_eig, zeta_model_eig : float
         Eigen-frequency (Hz) and damping ratio of the model at the posterior mean.
     data, model : ModalEstimate or None
-        Band-pass + Hilbert estimates from the data and from the noise-free
-        posterior-mean prediction (None when the mode is not measurable).
+        Damped-sinusoid estimates (:func:`~bayesbeam.trials.modal_id.damped_sinusoids`)
+        from the data and from the noise-free posterior-mean prediction (None when the
+        mode is not measurable).
     """
 
     mode: int
@@ -407,7 +340,7 @@ def compute_signatures(
     t = np.asarray(trial.times, dtype=float)
     data = np.asarray(trial.values, dtype=float)
     rng = np.random.default_rng(seed)
-    X, y, y_rep = posterior_predictive(problem, result, n_draws=n_draws, rng=rng)
+    X, y, y_rep = posterior_predictive(problem, result, n_draws, rng, select="spaced")
     pred = y.mean(axis=0)
     r = data - pred
     n = r.size

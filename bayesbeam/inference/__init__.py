@@ -2,7 +2,8 @@
 
 One model on one trial: the log posterior (:class:`Problem`), MAP and emcee
 posterior (``bayesbeam.inference.fit.fit``), its settings and their defaults
-(:class:`FitSettings`), and the :class:`FitResult` record.
+(:class:`FitSettings`), the :class:`FitResult` record, and posterior-predictive draws
+(:func:`posterior_predictive`).
 
 Layer: above :mod:`bayesbeam.trials`.
 """
@@ -12,7 +13,6 @@ from bayesbeam._util import lazy_exports
 _EXPORTS = {
     "BETA1": ".problem",
     "clip_to_prior": ".fit",
-    "decay_rate": ".fit",
     "default_priors": ".problem",
     "DIAGNOSIS_DEFAULTS": ".settings",
     "find_map": ".fit",
@@ -24,6 +24,9 @@ _EXPORTS = {
     "FitSettings": ".settings",
     "laplace_covariance": ".fit",
     "make_provenance": ".results",
+    "posterior_predictive": ".predictive",
+    "predictive_draws": ".predictive",
+    "PredictiveError": ".predictive",
     "Problem": ".problem",
     "profile_linear": ".fit",
     "reference_modulus": ".problem",

@@ -2,7 +2,8 @@
 
 The optimiser starts from the data (physics.md §5: the source's Nelder–Mead stayed near
 its initial guesses): E from the first spectral peak, the damping scale from the decay
-of the band-passed envelope, and the initial-condition amplitudes and offset by linear
+of the band-passed envelope (:func:`bayesbeam.trials.modal_id.first_mode_decay_rate`), and
+the initial-condition amplitudes and offset by linear
 least squares (the signal is linear in them). A coarse E scan, then L-BFGS-B in the
 sampling space from several starts, gives the MAP; the walkers start in a ball shaped by
 the Laplace covariance there. With two or more damping laws the ensemble moves in
@@ -21,7 +22,6 @@ from typing import Any
 
 import numpy as np
 import scipy.optimize as sopt
-import scipy.signal as ssig
 from scipy.special import logsumexp
 
 from bayesbeam.inference.problem import BETA1, Problem, first_frequency
@@ -33,13 +33,13 @@ from bayesbeam.stats.convergence import autocorr_time, ess_rhat
 from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform
 from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
 from bayesbeam.stats.sampling import Chain, de_moves, init_walkers, run_emcee
+from bayesbeam.trials.modal_id import first_mode_decay_rate
 from bayesbeam.trials.trial import Trial
 
 __all__ = [
     "FitError",
     "SamplerCoordinates",
     "clip_to_prior",
-    "decay_rate",
     "find_map",
     "fit",
     "laplace_covariance",
@@ -51,43 +51,6 @@ __all__ = [
 
 class FitError(ValueError):
     """A fit could not be set up or started."""
-
-
-def decay_rate(times: np.ndarray, values: np.ndarray, f1: float) -> float:
-    """Exponential decay rate (1/s) of the first mode from its band-passed envelope.
-
-    Band-pass ±30 % around ``f1`` (zero-phase Butterworth), Hilbert envelope, then a
-    straight-line fit of log-envelope against time over the central 80 % of the record
-    (the filter's edge transients excluded).
-
-    Parameters
-    ----------
-    times, values : ndarray, shape (T,)
-    f1 : float
-        First natural frequency in Hz.
-
-    Returns
-    -------
-    float
-        Decay rate σ = ζ ω1 in 1/s (≥ 1e-6 ω1).
-    """
-    t = np.asarray(times, dtype=float)
-    dt = (t[-1] - t[0]) / (t.size - 1)
-    grid = t[0] + dt * np.arange(t.size)
-    y = np.interp(grid, t, values)
-    nyq = 0.5 / dt
-    lo, hi = 0.7 * f1 / nyq, min(1.3 * f1 / nyq, 0.99)
-    if not 0 < lo < hi:
-        return 1e-3 * 2 * np.pi * f1
-    sos = ssig.butter(2, [lo, hi], btype="band", output="sos")
-    env = np.abs(ssig.hilbert(ssig.sosfiltfilt(sos, y - np.mean(y))))
-    n = env.size
-    sl = slice(n // 10, n - n // 10)
-    ok = env[sl] > 1e-12 * env.max()
-    if ok.sum() < 10:
-        return 1e-3 * 2 * np.pi * f1
-    slope = np.polyfit(grid[sl][ok], np.log(env[sl][ok]), 1)[0]
-    return float(max(-slope, 1e-6 * 2 * np.pi * f1))
 
 
 def _linear_names(problem: Problem) -> list[str]:
@@ -171,7 +134,7 @@ def _start_points(problem: Problem, rng: np.random.Generator, n_starts: int) -> 
     f1 = first_frequency(trial.times, trial.values)
     E0 = float(np.sqrt(np.prod(pri["E"].bounds)))  # prior centre = reference modulus
     w1 = 2 * np.pi * f1
-    zeta = decay_rate(trial.times, trial.values, f1) / w1
+    zeta = first_mode_decay_rate(trial.times, trial.values, f1) / w1
     laws = problem.model.laws
     X = np.empty((n_starts, len(names)))
     for i in range(n_starts):

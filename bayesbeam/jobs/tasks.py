@@ -306,14 +306,16 @@ def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any
 def _plots(trial: Any, problem: Any, score: Any, folder: Path, s: Mapping) -> list[str]:
     import numpy as np
 
-    from bayesbeam.report.plots import plot_fit, plot_residual_spectrum, posterior_predictive
+    from bayesbeam.inference.predictive import posterior_predictive
+    from bayesbeam.report.plots import plot_fit, plot_residual_spectrum
 
     res = score.result
     dpi = int(s.get("plot_dpi", 90))
     rng = np.random.default_rng([int(score.result.chain.seed), 1])
-    draws = posterior_predictive(problem, res, int(s.get("ppc_draws", 100)), rng)
-    plot_fit(trial, problem, res, folder / "fit.png", rng=rng, draws=draws, dpi=dpi)
-    resid = np.asarray(trial.values) - np.median(draws[0], axis=0)
+    _, y_model, y_rep = posterior_predictive(problem, res, int(s.get("ppc_draws", 100)), rng)
+    plot_fit(trial, problem, res, folder / "fit.png", rng=rng, draws=(y_model, y_rep),
+             dpi=dpi)
+    resid = np.asarray(trial.values) - np.median(y_model, axis=0)
     X = problem.theta(np.asarray(res.map_u)[None]) if res.map_u is not None else None
     freqs = None
     if X is not None:

@@ -13,7 +13,6 @@ _EXPORTS = {
     "assemble": ".fem",
     "Beam": ".beam",
     "BeamError": ".beam",
-    "decay_vs_amplitude": ".decay",
     "eigenvalues": ".propagate",
     "expm_batched": ".expm",
     "FEMError": ".fem",

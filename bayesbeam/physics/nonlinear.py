@@ -87,9 +87,9 @@ nonlinear FE system in tests/test_nonlinear.py):
   ``n_modes + 8`` lowest undamped modes (couplings to higher modes through non-proportional
   damping change them at O(ζ²)); the drag coefficient c_q is uniform along the span.
 
-:func:`decay_vs_amplitude` (from :mod:`bayesbeam.physics.decay`, re-exported here)
-measures the local decay rate against amplitude in a record (band-pass around f1,
-envelope by demodulation, windowed log-slope);
+The decay rate against amplitude of a record is measured in
+:mod:`bayesbeam.trials.modal_id` (:func:`~bayesbeam.trials.modal_id.envelope_decay_vs_amplitude`
+compares these signals with a direct integration in tests/physics/test_nonlinear.py);
 :func:`amplitude_damping_scales` converts drag and friction to first-mode damping ratios
 (for priors).
 """
@@ -101,7 +101,6 @@ from functools import lru_cache
 import numpy as np
 
 from bayesbeam.physics.beam import Beam
-from bayesbeam.physics.decay import decay_vs_amplitude
 from bayesbeam.physics.forward import Forward, ForwardError, Response, parameter_columns
 from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 
@@ -109,7 +108,6 @@ __all__ = [
     "NonlinearError",
     "NonlinearForward",
     "amplitude_damping_scales",
-    "decay_vs_amplitude",
     "two_tone_drag",
 ]
 

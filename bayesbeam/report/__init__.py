@@ -11,8 +11,6 @@ _EXPORTS = {
     "plot_fit": ".plots",
     "plot_residual_spectrum": ".plots",
     "PlotError": ".plots",
-    "posterior_predictive": ".plots",
-    "predictive_draws": ".plots",
     "REPORT_NAME": ".html",
     "ReportError": ".html",
     "residual_summary": ".plots",

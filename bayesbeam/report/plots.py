@@ -1,14 +1,12 @@
-"""Posterior-predictive checks of a fit: predictive draws, fit and residual plots, whiteness.
+"""Posterior-predictive checks of a fit: fit and residual plots, whiteness.
 
 Figures are built on :class:`matplotlib.figure.Figure` directly (object API, Agg
 canvas), so importing or calling this module never touches pyplot's global state or
 the backend.
 
-* :func:`posterior_predictive` simulates the model signal of posterior draws and,
-  with the fitted noise model added, replicated data ``y_rep`` (i.i.d. Gaussian, or the
-  stationary AR(1) of :mod:`bayesbeam.stats.likelihood` when the model has ``ar1_noise``).
-* :func:`plot_fit`: data against the 5–95 % posterior-predictive band and the median
-  model, residuals (data minus the pointwise posterior median of the model) underneath.
+* :func:`plot_fit`: data against the 5–95 % posterior-predictive band (draws of
+  :func:`bayesbeam.inference.predictive.posterior_predictive`) and the median model,
+  residuals (data minus the pointwise posterior median of the model) underneath.
 * :func:`plot_residual_spectrum`: Welch amplitude spectral density of the residuals with
   the model's modal frequencies marked; structure at a modal frequency points at a
   damping law that cannot reproduce that mode's decay (physics.md §3, correlated
@@ -26,6 +24,7 @@ from typing import Any
 import numpy as np
 import scipy.signal as ssig
 
+from bayesbeam.inference.predictive import posterior_predictive
 from bayesbeam.stats.whiteness import autocorrelation, ljung_box
 
 __all__ = [
@@ -33,8 +32,6 @@ __all__ = [
     "UNIT_LABELS",
     "plot_fit",
     "plot_residual_spectrum",
-    "posterior_predictive",
-    "predictive_draws",
     "residual_summary",
 ]
 
@@ -47,110 +44,6 @@ STRUCTURE_ALPHA = 0.01
 
 class PlotError(ValueError):
     """Invalid input to a plotting or checking function; the message says how to fix it."""
-
-
-def _noise(problem: Any, X: np.ndarray, T: int, rng: np.random.Generator) -> np.ndarray:
-    """Draws of the fitted noise process, shape (n, T), one row per parameter set.
-
-    I.i.d. N(0, sigma²), or the stationary AR(1) of :mod:`bayesbeam.stats.likelihood`
-    (marginal sd ``sigma``, lag correlation ``rho``; for non-uniform stamps the step
-    correlation is ``rho^(dt_i / dt_ref)`` with ``dt_ref`` the median step), the same
-    process the likelihood scores.
-    """
-    names = list(problem.names)
-    sigma = X[:, names.index("sigma")]
-    e = rng.standard_normal((X.shape[0], T))
-    if "rho" not in names:
-        return sigma[:, None] * e
-    rho = X[:, names.index("rho")]
-    if problem.trial.is_uniform:
-        phi = np.broadcast_to(rho[:, None], (X.shape[0], T - 1))
-    else:
-        steps = np.diff(problem.trial.times)
-        ref = float(np.median(steps))
-        phi = np.clip(rho, 0.0, None)[:, None] ** (steps / ref)[None, :]
-    r = np.empty_like(e)
-    r[:, 0] = e[:, 0]
-    innov = np.sqrt(np.clip(1.0 - phi**2, 0.0, None))
-    for t in range(1, T):  # sequential by nature; T steps of a vectorised update
-        r[:, t] = phi[:, t - 1] * r[:, t - 1] + innov[:, t - 1] * e[:, t]
-    return sigma[:, None] * r
-
-
-def predictive_draws(
-    problem: Any, U: np.ndarray, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """Model signal and replicated data for given sampling-space points.
-
-    Parameters
-    ----------
-    problem : bayesbeam.inference.problem.Problem
-        The problem the points belong to.
-    U : ndarray, shape (n, ndim)
-        Points in the sampling space (e.g. posterior draws).
-    rng : numpy.random.Generator
-        Source of the noise draws.
-
-    Returns
-    -------
-    y_model : ndarray, shape (n, T)
-        Model signal (offset included) in SI units of the trial's quantity.
-    y_rep : ndarray, shape (n, T)
-        ``y_model`` plus a draw of the fitted noise process.
-
-    Raises
-    ------
-    PlotError
-        If a point gives an invalid model (it cannot be a posterior draw then).
-    """
-    U = np.atleast_2d(np.asarray(U, dtype=float))
-    X = problem.theta(U)
-    res = problem.predict(X)
-    if not np.all(res.valid):
-        bad = int(np.count_nonzero(~res.valid))
-        raise PlotError(
-            f"{bad} of {U.shape[0]} points give an invalid forward model; pass posterior "
-            "draws of this problem (finite log_prob)"
-        )
-    y_model = np.asarray(res.y, dtype=float)
-    return y_model, y_model + _noise(problem, X, y_model.shape[1], rng)
-
-
-def posterior_predictive(
-    problem: Any, result: Any, n_draws: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """Posterior-predictive draws of the model signal and of replicated data.
-
-    Parameters
-    ----------
-    problem : bayesbeam.inference.problem.Problem
-        The problem that was fitted.
-    result : bayesbeam.inference.results.FitResult
-        Its posterior.
-    n_draws : int
-        Number of posterior draws, taken at random without replacement from all
-        stored samples (all of them if there are fewer).
-    rng : numpy.random.Generator
-        Chooses the draws and the noise.
-
-    Returns
-    -------
-    y_model : ndarray, shape (n, T)
-        Model signal of each draw, SI units of the trial's quantity.
-    y_rep : ndarray, shape (n, T)
-        ``y_model`` plus the fitted noise (i.i.d. or AR(1)).
-    """
-    if isinstance(n_draws, bool) or not isinstance(n_draws, (int, np.integer)) or n_draws < 1:
-        raise PlotError(f"n_draws must be a positive int, got {n_draws!r}")
-    if tuple(result.names) != tuple(problem.names):
-        raise PlotError(
-            f"result parameters {list(result.names)} do not match the problem's "
-            f"{list(problem.names)}; pass the problem that was fitted"
-        )
-    flat = result.chain.flat_samples
-    n = min(int(n_draws), flat.shape[0])
-    idx = np.sort(rng.choice(flat.shape[0], size=n, replace=False))
-    return predictive_draws(problem, flat[idx], rng)
 
 
 def _quantity_unit(trial: Any) -> tuple[str, str]:
@@ -188,8 +81,9 @@ def plot_fit(
     rng : numpy.random.Generator
         Chooses draws and noise.
     draws : tuple of ndarray, optional
-        Precomputed ``(y_model, y_rep)`` of :func:`posterior_predictive`, each
-        shape (n, T); then ``n_draws`` and ``rng`` are not used.
+        Precomputed ``(y_model, y_rep)`` of
+        :func:`bayesbeam.inference.predictive.posterior_predictive`, each shape (n, T);
+        then ``n_draws`` and ``rng`` are not used.
     dpi : int, default 120
 
     Returns
@@ -202,7 +96,7 @@ def plot_fit(
     y = np.asarray(trial.values, dtype=float)
     y_model, y_rep = draws if draws is not None else posterior_predictive(
         problem, result, n_draws, rng
-    )
+    )[1:]
     if y_model.shape[-1] != t.size or y_rep.shape != y_model.shape:
         raise PlotError(
             f"predictive draws have shape {y_model.shape}/{y_rep.shape}; the trial has "

@@ -258,8 +258,8 @@ def stationary_ar1(
     ``e_0 = sd z_0`` and ``e_t = phi_t e_{t-1} + sd sqrt(1 - phi_t²) z_t`` for t >= 1,
     with ``phi_t`` the lag correlation of :func:`ar1_pointwise` (``rho`` on uniform
     stamps, ``rho^((t_t - t_{t-1}) / dt_ref)`` with ``times``): every ``e_t`` has
-    standard deviation ``sd`` and ``corr(e_i, e_j) = rho^|i-j|`` (uniform stamps), the
-    process whose density :func:`ar1_loglik` is. With one correlation for every step the
+    standard deviation ``sd`` and ``corr(e_i, e_j) = rho^|i-j|`` (uniform stamps): the
+    process that :func:`ar1_loglik` scores. With one correlation for every step the
     recursion is the linear filter ``1 / (1 - phi B)`` (B the lag operator) and runs in
     :func:`scipy.signal.lfilter` (the same products and sums as the loop, so the same
     bits); otherwise it is stepped in time, vectorised over the series.
@@ -304,13 +304,13 @@ def stationary_ar1(
             f"{z.shape[:-1]} of draws {z.shape}"
         ) from None
     T = z.shape[-1]
-    phi, _, ok = _lag_powers(rho, times, dt_ref, max(T, 1))
-    if not np.all(ok & np.isfinite(rho)):
-        support = "[0, 1) with times" if times is not None else "(-1, 1)"
-        raise LikelihoodError(f"rho must lie in {support} for a stationary AR(1)")
     e = np.empty(z.shape)
     if T == 0:
         return e
+    phi, _, ok = _lag_powers(rho, times, dt_ref, T)
+    if not np.all(ok):  # NaN fails the comparisons too
+        support = "[0, 1) with times" if times is not None else "(-1, 1)"
+        raise LikelihoodError(f"rho must lie in {support} for a stationary AR(1)")
     # Innovations: the stationary start, then sd sqrt(1 - phi²) per step (so every
     # sample has variance sd²).
     x = np.empty(z.shape)

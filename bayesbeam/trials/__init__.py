@@ -12,6 +12,8 @@ _EXPORTS = {
     "band_modal_estimate": ".modal_id",
     "damped_sinusoids": ".modal_id",
     "decay_rate_vs_amplitude": ".modal_id",
+    "envelope_decay_vs_amplitude": ".modal_id",
+    "first_mode_decay_rate": ".modal_id",
     "DecayAmplitude": ".modal_id",
     "DEFAULT_ROOT": ".realdata",
     "ENES": ".realdata",

@@ -6,13 +6,9 @@ import numpy as np
 import pytest
 import scipy.optimize as sopt
 
-from bayesbeam.diagnosis import signatures
 from bayesbeam.diagnosis.signatures import compute_signatures, plot_signatures
 from bayesbeam.inference.problem import Problem
-from bayesbeam.inference.results import FitResult
 from bayesbeam.physics.beam import Beam
-from bayesbeam.stats.sampling import Chain
-from bayesbeam.trials import modal_id
 from bayesbeam.trials.synthetic import simulate_signal
 from bayesbeam.trials.trial import Trial
 
@@ -21,33 +17,20 @@ L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9
 BEAM = Beam.rectangular(L, WIDTH, THICK, RHO * L * WIDTH * THICK, E=E)
 
 
-def test_estimators_are_reexported_from_signatures():
-    # The estimators moved to bayesbeam.trials.modal_id; callers still import them from here.
-    for name in modal_id.__all__:
-        assert getattr(signatures, name) is getattr(modal_id, name)
-        assert name in signatures.__all__
-
-
 def _frequency_equation(x, mu):
     # physics.md §3: 1 + cos βL cosh βL + μ βL (cos βL sinh βL - sin βL cosh βL) = 0.
     return 1 + np.cos(x) * np.cosh(x) + mu * x * (np.cos(x) * np.sinh(x) - np.sin(x) * np.cosh(x))
 
 
-def _fake_result(problem, x_true, rng, steps=24, walkers=16):
-    """A posterior stand-in: draws from the Laplace approximation around the truth."""
+def _laplace_draws(problem, x_true, rng, steps=24, walkers=16):
+    """Posterior stand-in draws (u-space): the Laplace approximation around the truth."""
     from bayesbeam.inference.fit import laplace_covariance
 
     u0 = problem.priors.to_u(np.atleast_2d(x_true))[0]
     cov = laplace_covariance(problem, u0)
     if cov is None:  # not at an optimum (a misfit model): a tight ball is enough here
         cov = np.eye(problem.ndim) * 1e-12
-    U = rng.multivariate_normal(u0, cov, size=(steps, walkers))
-    d = problem.ndim
-    chain = Chain(samples=U, log_prob=problem.log_prob(U.reshape(-1, d)).reshape(steps, walkers),
-                  names=problem.names, tau=np.ones(d), ess=np.full(d, 1e3), rhat=np.ones(d),
-                  acceptance_fraction=np.full(walkers, 0.3), n_calls=0, converged=True,
-                  seconds=0.0, burn_in=0, seed=0)
-    return FitResult(model=problem.model.name, chain=chain, priors=problem.priors, map_u=u0)
+    return u0, rng.multivariate_normal(u0, cov, size=(steps, walkers))
 
 
 def _tap_trial(model, params, mu_extra=None, noise=0.01, seed=5):
@@ -59,13 +42,14 @@ def _tap_trial(model, params, mu_extra=None, noise=0.01, seed=5):
                  beam=BEAM, name="tap"), sd
 
 
-def test_signatures_of_the_true_model_are_clean():
+def test_signatures_of_the_true_model_are_clean(result_from_samples):
     w1 = 2 * np.pi * 10.28
     gamma = 2 * BEAM.rhoA * w1 * 0.003
     trial, sd = _tap_trial("viscous", {"gamma": gamma})
     pb = Problem(trial, "viscous", n_elements=8, initial="impulse")
     x_true = np.array([E, gamma, 1e-3, sd])
-    sig = compute_signatures(pb, _fake_result(pb, x_true, np.random.default_rng(6)), seed=1)
+    u0, u = _laplace_draws(pb, x_true, np.random.default_rng(6))
+    sig = compute_signatures(pb, result_from_samples(pb, u, map_u=u0), seed=1)
     assert sig.white  # i.i.d. noise: Ljung-Box does not reject at 1 %
     # 512 samples: binomial sd of a coverage fraction 0.013; 4 sd.
     assert abs(sig.coverage90 - 0.9) < 0.055
@@ -81,7 +65,7 @@ def test_signatures_of_the_true_model_are_clean():
     assert len(fig.axes) >= 6
 
 
-def test_tip_mass_raises_f2_over_f1_as_the_frequency_equation_says():
+def test_tip_mass_raises_f2_over_f1_as_the_frequency_equation_says(result_from_samples):
     mu = 0.1
     b1 = sopt.brentq(_frequency_equation, 1.0, 2.0, args=(mu,))
     b2 = sopt.brentq(_frequency_equation, 3.5, 5.0, args=(mu,))
@@ -94,7 +78,8 @@ def test_tip_mass_raises_f2_over_f1_as_the_frequency_equation_says():
     pb = Problem(trial, "viscous", n_elements=8, initial="impulse")
     # Uniform model with E set so that its f1 matches the loaded beam's: ω ∝ β² sqrt(E).
     x = np.array([E * (b1 / 1.875104069) ** 4, gamma, 1e-3, sd])
-    sig = compute_signatures(pb, _fake_result(pb, x, np.random.default_rng(7)), seed=1)
+    u0, u = _laplace_draws(pb, x, np.random.default_rng(7))
+    sig = compute_signatures(pb, result_from_samples(pb, u, map_u=u0), seed=1)
     # Measured from the records: 8 elements and the damped-sinusoid fit, 2e-3 relative.
     assert sig.ratio_data == pytest.approx(ratio, rel=2e-3)
     assert sig.ratio_model == pytest.approx(ratio0, rel=2e-3)

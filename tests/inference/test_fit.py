@@ -18,9 +18,10 @@ import pytest
 
 import bayesbeam.inference.fit as fitmod
 from bayesbeam.inference.fit import SamplerCoordinates, fit
+from bayesbeam.inference.predictive import posterior_predictive
 from bayesbeam.inference.problem import BETA1, Problem
 from bayesbeam.physics.beam import Beam
-from bayesbeam.report.plots import posterior_predictive, residual_summary
+from bayesbeam.report.plots import residual_summary
 from bayesbeam.stats.sampling import NotConvergedWarning
 from bayesbeam.trials.synthetic import simulate_signal, simulate_trial
 from bayesbeam.trials.trial import Trial
@@ -301,7 +302,7 @@ def test_negative_control_kv_data_viscous_fit_has_structured_residuals():
     for model in ("viscous", "viscous+kv"):
         res = _fit(tr, model, seed=1)
         pr = Problem(tr, model, n_elements=NE)
-        y_model, _ = posterior_predictive(pr, res, 100, rng)
+        _, y_model, _ = posterior_predictive(pr, res, 100, rng)
         resid = tr.values - np.median(y_model, axis=0)
         summaries[model] = residual_summary(resid, tr.times)
     assert summaries["viscous"]["structured"], summaries["viscous"]

@@ -24,9 +24,9 @@ from bayesbeam.physics.nonlinear import (
     NonlinearError,
     NonlinearForward,
     amplitude_damping_scales,
-    decay_vs_amplitude,
     two_tone_drag,
 )
+from bayesbeam.trials.modal_id import envelope_decay_vs_amplitude
 
 BETA1L = 1.875104069
 
@@ -322,8 +322,8 @@ def test_slow_flow_matches_direct_integration(quantity, drag, friction):
     # quadrature term, which changes the modulus only at O(ε²) ~ 1e-5 (measured 2e-5 for
     # the amplitudes, 5e-6 for drag's windowed rates; friction's acceleration carries the
     # Coulomb force's square-wave harmonics, which leak into 1.5 s windows at 6e-3).
-    a1, r1 = decay_vs_amplitude(t, y, f1, 3, trim_cycles=2)
-    a2, r2 = decay_vs_amplitude(t, yd, f1, 3, trim_cycles=2)
+    a1, r1 = envelope_decay_vs_amplitude(t, y, f1, 3, trim_cycles=2)
+    a2, r2 = envelope_decay_vs_amplitude(t, yd, f1, 3, trim_cycles=2)
     np.testing.assert_allclose(a1, a2, rtol=1e-4)
     np.testing.assert_allclose(r1, r2, rtol=1e-2)
 
@@ -341,8 +341,8 @@ def test_slow_flow_matches_direct_integration_long(quantity, drag, friction):
     assert err < 2 * eps  # see test_slow_flow_matches_direct_integration
     assert np.abs(y_lin - yd).max() / scale > 20 * err
     # Envelope: O(ε²) (measured ≤ 2e-5 for amplitudes, ≤ 5e-5 for rates).
-    a1, r1 = decay_vs_amplitude(t, y, f1, 6)
-    a2, r2 = decay_vs_amplitude(t, yd, f1, 6)
+    a1, r1 = envelope_decay_vs_amplitude(t, y, f1, 6)
+    a2, r2 = envelope_decay_vs_amplitude(t, yd, f1, 6)
     np.testing.assert_allclose(a1, a2, rtol=2e-4)
     np.testing.assert_allclose(r1, r2, rtol=1e-3)
     # The signature is in the direct integration too.
@@ -356,19 +356,19 @@ def test_slow_flow_matches_direct_integration_long(quantity, drag, friction):
 # ----------------------------------------------------------------------------- signatures
 
 
-def test_decay_vs_amplitude_of_exponential_decay_is_flat():
+def test_envelope_decay_vs_amplitude_of_exponential_decay_is_flat():
     t = np.arange(5120) / 512
     sigma, f = 0.35, 9.0
     y = 0.02 * np.exp(-sigma * t) * np.cos(2 * np.pi * f * t + 0.3)
-    amp, rate = decay_vs_amplitude(t, y, f, 6)
+    amp, rate = envelope_decay_vs_amplitude(t, y, f, 6)
     # Every step maps e^{-σt} cos ωt to the same σ; the edges are extended by the fitted
     # sinusoid, so what remains is ~1e-5 1/s (measured) from the Hann average's leakage.
     np.testing.assert_allclose(rate, sigma, rtol=0, atol=2e-4)
     assert np.all(np.diff(amp) < 0)
     with pytest.raises(ValueError, match="Nyquist"):
-        decay_vs_amplitude(t, y, 300.0)
+        envelope_decay_vs_amplitude(t, y, 300.0)
     with pytest.raises(ValueError, match="short"):
-        decay_vs_amplitude(t[:100], y[:100], f, 8)
+        envelope_decay_vs_amplitude(t[:100], y[:100], f, 8)
 
 
 @pytest.mark.parametrize("quantity", ["displacement", "acceleration"])
@@ -381,7 +381,7 @@ def test_signatures_drag_grows_with_amplitude_friction_falls(quantity):
     out = {}
     for name, (d, fr) in {"linear": (0, 0), "drag": (DRAG, 0), "friction": (0, FRICTION)}.items():
         y = f.simulate({**p, "drag": d, "friction": fr}).y[0]
-        out[name] = decay_vs_amplitude(t, y, f1, 8)
+        out[name] = envelope_decay_vs_amplitude(t, y, f1, 8)
     amp, rate = out["linear"]
     # Linear: one rate, σ = ζ1 ω1 of the model's first mode (0.011 1/s here). Tolerance:
     # the estimator's 2e-4 1/s (test above) plus the beat with the weak second mode that

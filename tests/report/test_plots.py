@@ -1,4 +1,4 @@
-"""Posterior-predictive draws, fit/spectrum plots and the residual whiteness summary."""
+"""Fit/spectrum plots and the residual whiteness summary."""
 
 from __future__ import annotations
 
@@ -10,17 +10,13 @@ import pytest
 from scipy import stats
 
 from bayesbeam.inference.problem import Problem
-from bayesbeam.inference.results import FitResult
 from bayesbeam.physics.beam import Beam
 from bayesbeam.report.plots import (
     PlotError,
     plot_fit,
     plot_residual_spectrum,
-    posterior_predictive,
-    predictive_draws,
     residual_summary,
 )
-from bayesbeam.stats.sampling import Chain
 from bayesbeam.trials.synthetic import simulate_trial
 from bayesbeam.trials.trial import Trial
 
@@ -31,68 +27,20 @@ def _beam():
     return Beam.rectangular(0.3048, 0.127, 0.72e-3, 0.021, E=6.2e10)
 
 
-def _fake_result(problem, truth, sd_u, nsteps=40, nwalkers=16, seed=0):
-    """A FitResult whose 'posterior' is a small Gaussian cloud around the truth (in u)."""
-    rng = np.random.default_rng(seed)
-    u0 = problem.priors.to_u(np.asarray(truth)[None])[0]
-    u = u0 + sd_u * rng.standard_normal((nsteps, nwalkers, u0.size))
-    nd = u0.size
-    chain = Chain(
-        samples=u, log_prob=problem.log_prob(u.reshape(-1, nd)).reshape(nsteps, nwalkers),
-        names=problem.names, tau=np.ones(nd), ess=np.full(nd, 500.0), rhat=np.ones(nd),
-        acceptance_fraction=np.full(nwalkers, 0.3), n_calls=0, converged=True,
-        seconds=0.0, burn_in=0, seed=seed,
-    )
-    return FitResult(model=problem.model.name, chain=chain, priors=problem.priors)
-
-
 @pytest.fixture(scope="module")
-def setup():
+def setup(gaussian_cloud_result):
     beam = _beam()
     tr = simulate_trial(beam, "viscous", {"gamma": 0.2}, duration=0.5, dt=1 / 256,
                         noise_sd=1e-5, seed=3, n_elements=6)
     pr = Problem(tr, "viscous", n_elements=6)
     truth = [6.2e10, 0.2, 0.005, 1e-5]
     sd_u = np.array([1e-6, 1e-3, 1e-5, 1e-2])
-    return tr, pr, _fake_result(pr, truth, sd_u)
+    return tr, pr, gaussian_cloud_result(pr, truth, sd_u)
 
 
 def _is_png(path):
     data = path.read_bytes()
     return len(data) > 1000 and data[:8] == PNG_MAGIC
-
-
-def test_posterior_predictive_shapes_and_noise(setup):
-    tr, pr, res = setup
-    y_model, y_rep = posterior_predictive(pr, res, 50, np.random.default_rng(0))
-    assert y_model.shape == y_rep.shape == (50, tr.times.size)
-    # The replicate minus the model is the noise draw: its sd is the sampled sigma
-    # (~1e-5 m); with 50*128 values the sample sd is within 3 % (chi-square: sd ~ 1/sqrt(2N)).
-    sd = np.std(y_rep - y_model)
-    assert sd == pytest.approx(1e-5, rel=0.05)
-    # The model is close to the data (truth +- noise): RMS misfit ~ sigma.
-    assert np.sqrt(np.mean((tr.values - y_model) ** 2)) < 3e-5
-
-
-def test_posterior_predictive_same_rng_same_draws(setup):
-    _, pr, res = setup
-    a = posterior_predictive(pr, res, 10, np.random.default_rng(7))
-    b = posterior_predictive(pr, res, 10, np.random.default_rng(7))
-    np.testing.assert_array_equal(a[1], b[1])
-
-
-def test_ar1_replicates_have_the_fitted_lag_correlation():
-    beam = _beam()
-    tr = simulate_trial(beam, "viscous", {"gamma": 0.2}, duration=2.0, dt=1 / 256,
-                        noise_sd=1e-5, seed=3, n_elements=4)
-    pr = Problem(tr, "viscous+ar1_noise", n_elements=4)
-    X = np.array([[6.2e10, 0.2, 0.005, 1e-5, 0.8]] * 40)
-    y_model, y_rep = predictive_draws(pr, pr.priors.to_u(X), np.random.default_rng(1))
-    e = y_rep - y_model
-    r1 = np.mean(np.sum(e[:, 1:] * e[:, :-1], axis=1) / np.sum(e * e, axis=1))
-    # Lag-1 autocorrelation estimate from 40 x 512 samples: sd ~ sqrt((1-rho^2)/N) ~ 4e-3.
-    assert r1 == pytest.approx(0.8, abs=0.03)
-    assert np.std(e) == pytest.approx(1e-5, rel=0.1)  # marginal sd is sigma (10 %: few draws)
 
 
 def test_plot_fit_writes_png(setup, tmp_path):

@@ -1,0 +1,149 @@
+"""Posterior-predictive draws: the model signal of parameter sets plus the fitted noise.
+
+For parameter sets ``θ_s`` (posterior draws) the replicated data are
+``y_rep_s = y(θ_s) + e_s`` with ``e_s`` a draw of the noise model the likelihood scores
+(:mod:`bayesbeam.stats.likelihood`): i.i.d. N(0, σ²), or, for a model with
+``ar1_noise``, the stationary AR(1) with marginal sd σ and lag-one correlation ρ
+(``ρ^(Δt/dt_ref)`` between stamps Δt apart when they are not uniform, ``dt_ref`` the
+median step), drawn by :func:`~bayesbeam.stats.likelihood.stationary_ar1`. Checking the
+data against ``y_rep`` is the posterior-predictive check of Gelman, Meng & Stern (1996,
+Statistica Sinica 6, 733-807).
+
+:func:`posterior_predictive` picks the draws from a :class:`~bayesbeam.inference.results.FitResult`
+(at random for the fit plots of :mod:`bayesbeam.report.plots`, evenly spaced along the
+chain for the coverage of :mod:`bayesbeam.diagnosis.signatures`);
+:func:`predictive_draws` simulates given sampling-space points (the ArviZ
+``posterior_predictive`` group written by ``bayesbeam fit``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from bayesbeam.stats.likelihood import stationary_ar1
+
+__all__ = ["PredictiveError", "posterior_predictive", "predictive_draws"]
+
+#: How :func:`posterior_predictive` picks its draws from the flattened chain.
+_SELECTIONS = ("random", "spaced")
+
+
+class PredictiveError(ValueError):
+    """Invalid input to a predictive draw; the message says how to fix it."""
+
+
+def _noise(problem: Any, X: np.ndarray, T: int, rng: np.random.Generator) -> np.ndarray:
+    """Draws of the fitted noise process, shape (n, T), one row per parameter set.
+
+    The times are passed for non-uniform stamps exactly as the likelihood of
+    :class:`~bayesbeam.inference.problem.Problem` gets them, so ``y_rep`` samples the
+    process that the posterior was scored with.
+    """
+    names = list(problem.names)
+    sigma = X[:, names.index("sigma")]
+    z = rng.standard_normal((X.shape[0], T))
+    if "rho" not in names:
+        return sigma[:, None] * z
+    times = None if problem.trial.is_uniform else problem.trial.times
+    return sigma[:, None] * stationary_ar1(z, X[:, names.index("rho")], times=times)
+
+
+def predictive_draws(
+    problem: Any, U: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Model signal and replicated data for given sampling-space points.
+
+    Parameters
+    ----------
+    problem : bayesbeam.inference.problem.Problem
+        The problem the points belong to.
+    U : array_like, shape (n, ndim)
+        Points in the sampling space (e.g. posterior draws).
+    rng : numpy.random.Generator
+        Source of the noise draws (one standard normal array of shape (n, T)).
+
+    Returns
+    -------
+    x : ndarray, shape (n, ndim)
+        The points in physical units (``problem.theta(U)``).
+    y_model : ndarray, shape (n, T)
+        Model signal (offset included) in SI units of the trial's quantity.
+    y_rep : ndarray, shape (n, T)
+        ``y_model`` plus a draw of the fitted noise process.
+
+    Raises
+    ------
+    PredictiveError
+        If a point gives an invalid model (it cannot be a posterior draw then).
+    """
+    U = np.atleast_2d(np.asarray(U, dtype=float))
+    X = problem.theta(U)
+    res = problem.predict(X)
+    if not np.all(res.valid):
+        bad = int(np.count_nonzero(~res.valid))
+        raise PredictiveError(
+            f"{bad} of {U.shape[0]} points give an invalid forward model; pass posterior "
+            "draws of this problem (finite log_prob)"
+        )
+    y_model = np.asarray(res.y, dtype=float)
+    return X, y_model, y_model + _noise(problem, X, y_model.shape[1], rng)
+
+
+def posterior_predictive(
+    problem: Any,
+    result: Any,
+    n_draws: int,
+    rng: np.random.Generator,
+    *,
+    select: str = "random",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Posterior-predictive draws of the model signal and of replicated data.
+
+    Parameters
+    ----------
+    problem : bayesbeam.inference.problem.Problem
+        The problem that was fitted.
+    result : bayesbeam.inference.results.FitResult
+        Its posterior.
+    n_draws : int
+        Number of posterior draws (all stored samples if there are fewer).
+    rng : numpy.random.Generator
+        Source of the noise draws, and of the draws' choice for ``select="random"``.
+    select : {"random", "spaced"}
+        ``"random"``: ``n_draws`` samples at random without replacement, in chain order;
+        ``"spaced"``: samples evenly spaced over the flattened chain (a deterministic
+        thinning; the same draws for every ``rng``).
+
+    Returns
+    -------
+    x : ndarray, shape (n, ndim)
+        Physical values of the draws.
+    y_model : ndarray, shape (n, T)
+        Model signal of each draw, SI units of the trial's quantity.
+    y_rep : ndarray, shape (n, T)
+        ``y_model`` plus the fitted noise (i.i.d. or AR(1)).
+
+    Raises
+    ------
+    PredictiveError
+        For a bad ``n_draws`` or ``select``, a result of another model, or a draw with
+        an invalid forward model.
+    """
+    if isinstance(n_draws, bool) or not isinstance(n_draws, (int, np.integer)) or n_draws < 1:
+        raise PredictiveError(f"n_draws must be a positive int, got {n_draws!r}")
+    if select not in _SELECTIONS:
+        raise PredictiveError(f"select must be one of {_SELECTIONS}, got {select!r}")
+    if tuple(result.names) != tuple(problem.names):
+        raise PredictiveError(
+            f"result parameters {list(result.names)} do not match the problem's "
+            f"{list(problem.names)}; pass the problem that was fitted"
+        )
+    flat = result.chain.flat_samples
+    n = min(int(n_draws), flat.shape[0])
+    if select == "random":
+        idx = np.sort(rng.choice(flat.shape[0], size=n, replace=False))
+    else:
+        idx = np.unique(np.linspace(0, flat.shape[0] - 1, n).astype(int))
+    return predictive_draws(problem, flat[idx], rng)
