@@ -39,8 +39,9 @@ def imports_of(path: Path, package: Path) -> set[str]:
     """Absolute names of the bayesbeam modules (or names) a file imports, anywhere in it."""
     name = module_name(path, package)
     is_pkg = path.name == "__init__.py"
+    tree = ast.parse(path.read_text(), filename=str(path))
     out = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names if a.name.split(".")[0] == package.name)
         elif isinstance(node, ast.ImportFrom):
@@ -56,7 +57,6 @@ def imports_of(path: Path, package: Path) -> set[str]:
             # ``from bayesbeam.x import y`` may import the submodule bayesbeam.x.y
             out.update(f"{mod}.{a.name}" for a in node.names)
     # lazy_exports tables name modules as strings: count them as imports too
-    tree = ast.parse(path.read_text())
     for node in ast.walk(tree):
         if isinstance(node, ast.Assign) and any(
             getattr(t, "id", None) == "_EXPORTS" for t in node.targets
