@@ -16,6 +16,8 @@ real-world effects the source left out (physics.md §3):
   deflection (the TOML states it only to the nearest mm, as read off a ruler);
 * damping from a mix of laws: viscous (air) plus spatial hysteresis with a broad kernel
   (b = 0.25 L) on the flexible beam, viscous plus Kelvin–Voigt on the two stiffer ones;
+* a vibrometer's band: the decoder's low-pass at 100 Hz (256 Hz / 2.56) removes the
+  modes above it (the second mode of the stiffest beam);
 * vibrometer-like noise: white Gaussian noise (sd 8 µm) plus an AR(1) component (sd 8 µm,
   lag-one correlation 0.6, as from the decoder's output filter): 11 µm in all, lag-one
   autocorrelation 0.3.
@@ -65,6 +67,10 @@ CUTOUT = Segment(start=0.1016, end=0.2032, I=0.4, rhoA=0.4)
 FS = 256.0  # Hz
 N_SAMPLES = 1280  # 5 s
 N_ELEMENTS_TRUTH = 32
+#: The vibrometer decoder's output low-pass, Hz: the default sensor band (FS / 2.56, see
+#: data/README.md "Sensor band"), written into each trial file. The record is what such a
+#: sensor sees: modes above it (the second mode of the stiffest beam) are filtered out.
+BANDWIDTH = FS / 2.56
 NOISE_WHITE_SD = 8.0e-6  # m
 NOISE_AR_SD = 8.0e-6  # m, marginal sd of the AR(1) component
 NOISE_AR_RHO = 0.6
@@ -179,7 +185,7 @@ def simulate(spec: BeamSpec, trial_index: int) -> tuple[np.ndarray, np.ndarray]:
     # initial='state' with the static shape computed here: the release from a static tip
     # load on the compliant clamp, at rest.
     fwd = Forward(beam, spec.model, times, n_elements=N_ELEMENTS_TRUTH, initial="state",
-                  initial_state=(c0, np.zeros_like(c0)))
+                  initial_state=(c0, np.zeros_like(c0)), bandwidth=BANDWIDTH)
     res = fwd.simulate({"E": spec.E, **spec.damping})
     if not res.valid[0]:
         raise RuntimeError(f"{spec.name}: the generating parameters are not admissible")
@@ -203,6 +209,7 @@ quantity = "displacement"
 unit = "mm"
 sensor_position = {LENGTH!r}  # laser vibrometer spot on the tip tape
 t0 = 0.0
+bandwidth = {BANDWIDTH!r}  # Hz, the vibrometer decoder's low-pass
 
 [beam]  # carbon-fibre strip, SI units
 length = {LENGTH!r}

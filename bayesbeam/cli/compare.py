@@ -107,6 +107,7 @@ def register(subparsers: Any) -> None:
                     help=f"comma-separated model names (default {DEFAULT_MODELS})")
     opts.add_outdir_seed_options(sp)
     opts.add_elements_option(sp, help="Hermite elements")
+    opts.add_fixed_mesh_option(sp)
     sp.add_argument("--target-ess", type=float, default=FIT_DEFAULTS.target_ess,
                     help="effective sample size per parameter to stop at")
     sp.add_argument("--max-steps", type=int, default=FIT_DEFAULTS.max_steps,

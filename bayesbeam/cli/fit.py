@@ -95,6 +95,7 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--priors", type=Path, default=None,
                     help="TOML file with [priors.NAME] dist=... tables overriding the defaults")
     opts.add_elements_option(sp)
+    opts.add_fixed_mesh_option(sp)
     sp.add_argument("--target-ess", type=float, default=FIT_DEFAULTS.target_ess,
                     help=f"bulk ESS required for every parameter "
                          f"(default {FIT_DEFAULTS.target_ess:g})")
@@ -268,6 +269,7 @@ def run(args: argparse.Namespace) -> int:
     for w in other:  # re-issue what this block was not meant to swallow
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     reasons = [str(w.message) for w in caught if issubclass(w.category, NotConvergedWarning)]
+    problem = problem.with_mesh(int(result.settings["n_elements"]))  # the converged mesh
 
     rng = np.random.default_rng([args.seed, 1])  # independent of the sampler's stream
     groups = _observation_groups(problem, result, rng)

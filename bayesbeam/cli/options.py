@@ -34,6 +34,7 @@ from bayesbeam.inference.settings import FIT_DEFAULTS
 __all__ = [
     "PREPROCESSING",
     "add_elements_option",
+    "add_fixed_mesh_option",
     "add_json_option",
     "add_outdir_seed_options",
     "add_preprocessing_options",
@@ -110,6 +111,21 @@ def add_elements_option(
         Help text of the option.
     """
     parser.add_argument("--elements", type=int, default=FIT_DEFAULTS.n_elements, help=help)
+
+
+def add_fixed_mesh_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--fixed-mesh``: keep ``--elements`` instead of refining it at the MAP.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    """
+    parser.add_argument(
+        "--fixed-mesh", action="store_true",
+        help="keep --elements as the mesh (the convergence check is still reported); by "
+             "default the mesh is refined until the prediction at the MAP no longer changes",
+    )
 
 
 def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
@@ -189,19 +205,24 @@ def fit_settings(args: argparse.Namespace) -> dict[str, Any]:
     Parameters
     ----------
     args : argparse.Namespace
-        Parsed options with ``seed``, ``elements``, ``target_ess`` and ``max_steps``.
+        Parsed options with ``seed``, ``elements``, ``target_ess``, ``max_steps`` and
+        (fit, compare) ``fixed_mesh``.
 
     Returns
     -------
     dict
-        ``seed``, ``n_elements``, ``target_ess`` and ``max_steps``.
+        ``seed``, ``n_elements``, ``target_ess``, ``max_steps`` and (with
+        ``fixed_mesh``) ``refine_mesh``.
     """
-    return {
+    out = {
         "seed": args.seed,
         "n_elements": args.elements,
         "target_ess": args.target_ess,
         "max_steps": args.max_steps,
     }
+    if hasattr(args, "fixed_mesh"):  # fit and compare refine the mesh; diagnose does not
+        out["refine_mesh"] = not args.fixed_mesh
+    return out
 
 
 def prepare_trial(args: argparse.Namespace) -> Any:

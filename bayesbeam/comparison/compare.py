@@ -183,6 +183,8 @@ class Comparison:
                 "n_calls": s.n_calls,
                 "seconds": s.seconds,
                 "converged": bool(s.result.chain.converged),
+                "adequate": _adequate(s),
+                "adequacy": dict(s.result.adequacy) if s.result.adequacy else None,
                 "notes": list(s.notes),
             })
         return rows
@@ -216,7 +218,7 @@ class Comparison:
 
     def _table(self) -> tuple[list[str], list[list[str]]]:
         head = ["model", "k", "max logL", "log Z ± err", "Δ log Z", "Laplace", "P(M|D)",
-                "ELPD-LOO ± se", "Δ ELPD ± se", "WAIC", "BIC"]
+                "ELPD-LOO ± se", "Δ ELPD ± se", "WAIC", "BIC", "adequate"]
         body = []
         for i, s in enumerate(self.scores):
             body.append([
@@ -232,6 +234,7 @@ class Comparison:
                 _pm(self.delta_elpd[i], self.delta_elpd_se[i], ".1f"),
                 _fmt(s.waic.waic, ".1f"),
                 _fmt(s.bic, ".1f"),
+                {True: "yes", False: "NO", None: "n/a"}[_adequate(s)],
             ])
         return head, body
 
@@ -276,6 +279,8 @@ class Comparison:
         )
         out += self._sensitivity_lines()
         notes = [f"  {s.name}: {n}" for s in self.scores for n in s.notes]
+        notes += [f"  {s.name}: {s.result.adequacy['summary']}" for s in self.scores
+                  if _adequate(s) is False]
         if notes:
             out += ["", "Notes:"] + notes
         out += ["", self.verdict]
@@ -479,6 +484,12 @@ def compare_scores(
     )
 
 
+def _adequate(score: ModelScore) -> bool | None:
+    """Return the fit's adequacy verdict (None when it was not assessed)."""
+    ad = score.result.adequacy
+    return bool(ad["ok"]) if ad and "ok" in ad else None
+
+
 def _verdict(
     names: Sequence[str], lz: np.ndarray, best: str | None, tied: tuple[str, ...],
     delta: np.ndarray, derr: np.ndarray, dependent: Sequence[str],
@@ -493,6 +504,14 @@ def _verdict(
                  "halved or doubled prior width (see prior sensitivity).")
     if any(not s.result.chain.converged for s in scores):
         tail += " Some chains did not converge (see notes)."
+    bad = [s.name for s in scores if _adequate(s) is False]
+    if bad and len(bad) == len(scores):
+        tail += (" No model reproduces the data to its noise (adequacy): the ranking and "
+                 "every interval are conditional on models the data reject; run `bayesbeam "
+                 "diagnose` on this trial to look for the missing effect.")
+    elif bad:
+        tail += (f" Not adequate (do not reproduce the data to its noise): {', '.join(bad)}; "
+                 "their intervals are conditional on models the data reject.")
     if len(names) == 1:
         return f"Verdict: only one model ({best}); nothing to compare.{tail}"
     others = [i for i, n in enumerate(names) if n not in tied and math.isfinite(lz[i])]

@@ -301,7 +301,15 @@ def evaluate(
             settings.update(n_elements=problem.n_elements, initial=problem.initial)
             result = fit(trial, model, seed=seed, problem=problem, outdir=outdir,
                          progress=progress, **settings)
-            extra_calls = 0
+            # The fit refines the mesh until its MAP converges: score on the fit's mesh.
+            # (Calls spent on the fit's refined problems are counted by its sampler's
+            # total; MAP polishing on intermediate meshes is not counted.)
+            coarse = problem
+            problem = problem.with_mesh(int(result.settings["n_elements"]))
+            extra_calls = coarse.n_calls - calls0
+            if problem is not coarse:
+                extra_calls += int(result.chain.n_calls)
+            calls0 = problem.n_calls
         else:
             fit_seconds = float(result.settings.get("total_seconds", 0.0))
             extra_calls = int(result.chain.n_calls)

@@ -226,6 +226,7 @@ def diagnose(
     max_rounds: int = 3,
     candidates: Sequence[str] = CATALOGUE,
     n_elements: int = DIAGNOSIS_DEFAULTS.n_elements,
+    refine_mesh: bool = DIAGNOSIS_DEFAULTS.refine_mesh,
     initial: str = DIAGNOSIS_DEFAULTS.initial,
     priors: Mapping[str, Any] | None = None,
     confirm_top: int = 3,
@@ -254,7 +255,11 @@ def diagnose(
     candidates : sequence of str
         Catalogue subset to try (default all of :data:`CATALOGUE`).
     n_elements : int
-        Hermite elements of the forward model.
+        Hermite elements of the forward model: the starting mesh.
+    refine_mesh : bool
+        Refine the mesh at the baseline's MAP until its prediction converges
+        (:func:`bayesbeam.inference.mesh.converge_mesh`) and use that mesh for every
+        model; the record is in the notes.
     initial : str
         Initial-condition kind (``'release'`` for synthetic release tests,
         ``'modes:K'`` for records whose window starts in free vibration).
@@ -301,6 +306,19 @@ def diagnose(
                   notes=notes, log=log)
     cur = eng.state(model)
     eng.optimise(cur, eng.starts(cur, None))
+    if refine_mesh:
+        # One mesh for every model of the diagnosis: the baseline's, converged at its MAP
+        # (bayesbeam.inference.mesh), so that no cause is named to absorb mesh error.
+        from bayesbeam.inference.fit import local_map
+        from bayesbeam.inference.mesh import converge_mesh
+
+        pb, u, _, mesh = converge_mesh(cur.problem, cur.u, cur.ll, local_map, progress=log)
+        notes.append(f"mesh: {mesh['summary']}")
+        if pb.n_elements != eng.n_elements:
+            eng.n_elements = pb.n_elements
+            del eng.states[model.name]
+            cur = eng.state(model)
+            eng.optimise(cur, pb.theta(u[None]))
     log(f"baseline {model.name}: max log L = {cur.ll:.2f}")
     first = cur
     rounds: list[Round] = []

@@ -11,7 +11,9 @@ Layer: above :mod:`bayesbeam.trials`.
 from bayesbeam._util import lazy_exports
 
 _EXPORTS = {
+    "assess": ".adequacy",
     "BETA1": ".problem",
+    "converge_mesh": ".mesh",
     "clip_to_prior": ".fit",
     "default_priors": ".problem",
     "DIAGNOSIS_DEFAULTS": ".settings",
@@ -23,6 +25,8 @@ _EXPORTS = {
     "FitResult": ".results",
     "FitSettings": ".settings",
     "laplace_covariance": ".fit",
+    "local_map": ".fit",
+    "mesh_check": ".mesh",
     "make_provenance": ".results",
     "posterior_predictive": ".predictive",
     "predictive_draws": ".predictive",

@@ -6,7 +6,10 @@ of the band-passed envelope (:func:`bayesbeam.trials.modal_id.first_mode_decay_r
 the initial-condition amplitudes and offset by linear
 least squares (the signal is linear in them). A coarse E scan, then L-BFGS-B in the
 sampling space from several starts, gives the MAP; the walkers start in a ball shaped by
-the Laplace covariance there. With two or more damping laws the ensemble moves in
+the Laplace covariance there. Before sampling, the mesh is refined until the MAP's
+prediction no longer depends on it (:mod:`bayesbeam.inference.mesh`); after, the model's
+adequacy is checked against the data's own noise (:mod:`bayesbeam.inference.adequacy`).
+With two or more damping laws the ensemble moves in
 :class:`SamplerCoordinates` (log total first-mode damping and log ratios of the laws'
 shares), where the damping ridge is straight; results are reported in the sampling
 space ``u`` of :mod:`bayesbeam.stats.priors` as usual.
@@ -15,6 +18,7 @@ space ``u`` of :mod:`bayesbeam.stats.priors` as usual.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -24,6 +28,8 @@ import numpy as np
 import scipy.optimize as sopt
 from scipy.special import logsumexp
 
+from bayesbeam.inference.adequacy import assess
+from bayesbeam.inference.mesh import converge_mesh
 from bayesbeam.inference.problem import BETA1, Problem, first_frequency
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
@@ -194,7 +200,8 @@ def scan_E(problem: Problem, X: np.ndarray, n_grid: int = 96) -> np.ndarray:
     out = X.copy()
     for i in range(X.shape[0]):
         for width in (0.15, 0.015):
-            grid = X[i, j] * np.exp(np.linspace(-width, width, n_grid))
+            # Each pass is centred on the best E so far (the fine pass on the coarse one's).
+            grid = out[i, j] * np.exp(np.linspace(-width, width, n_grid))
             Xg = np.repeat(out[i : i + 1], n_grid, axis=0)
             Xg[:, j] = grid
             Xg = profile_linear(problem, clip_to_prior(problem, Xg))
@@ -238,6 +245,41 @@ def laplace_covariance(problem: Problem, u: np.ndarray, h: float = 1e-4) -> np.n
     return Li.T @ Li
 
 
+#: Steps of the discarded first run that returns stranded walkers to the ensemble
+#: (:func:`bayesbeam.stats.sampling.preburn_walkers`); ~10 % of a typical fit's steps.
+PREBURN_STEPS = 200
+
+
+def local_map(problem: Problem, u0: np.ndarray, *, maxiter: int = 300) -> tuple[np.ndarray, float]:
+    """Local MAP search (L-BFGS-B on finite-difference gradients) from one start.
+
+    Parameters
+    ----------
+    problem : Problem
+    u0 : ndarray, shape (ndim,)
+        Start in the sampling space.
+    maxiter : int
+
+    Returns
+    -------
+    u : ndarray, shape (ndim,)
+    log_prob : float
+        ``-inf`` when the search found no finite density.
+    """
+    def negf(u: np.ndarray) -> tuple[float, np.ndarray]:
+        v, g = fd_gradient(problem.log_prob, u, 1e-6)
+        if not np.isfinite(v):
+            return 1e300, np.zeros_like(u)
+        g = np.where(np.isfinite(g), g, 0.0)
+        return -v, -g
+
+    bounds = [tuple(b) if np.all(np.isfinite(b)) else (None, None) for b in problem.priors.bounds_u]
+    bounds = [(lo + 1e-9, hi - 1e-9) if lo is not None else (None, None) for lo, hi in bounds]
+    res = sopt.minimize(negf, np.asarray(u0, dtype=float), jac=True, method="L-BFGS-B",
+                        bounds=bounds, options={"maxiter": maxiter})
+    return res.x, float(problem.log_prob(res.x[None])[0])
+
+
 def find_map(
     problem: Problem, *, rng: np.random.Generator, n_starts: int = 4, maxiter: int = 300
 ) -> tuple[np.ndarray, float]:
@@ -260,22 +302,10 @@ def find_map(
     X = scan_E(problem, _start_points(problem, rng, n_starts))
     U = problem.priors.to_u(X)
     best_u, best_v = None, -np.inf
-
-    def negf(u: np.ndarray) -> tuple[float, np.ndarray]:
-        v, g = fd_gradient(problem.log_prob, u, 1e-6)
-        if not np.isfinite(v):
-            return 1e300, np.zeros_like(u)
-        g = np.where(np.isfinite(g), g, 0.0)
-        return -v, -g
-
-    bounds = [tuple(b) if np.all(np.isfinite(b)) else (None, None) for b in problem.priors.bounds_u]
-    bounds = [(lo + 1e-9, hi - 1e-9) if lo is not None else (None, None) for lo, hi in bounds]
     for u0 in U:
-        res = sopt.minimize(negf, u0, jac=True, method="L-BFGS-B", bounds=bounds,
-                            options={"maxiter": maxiter})
-        v = float(problem.log_prob(res.x[None])[0])
+        u, v = local_map(problem, u0, maxiter=maxiter)
         if v > best_v:
-            best_u, best_v = res.x, v
+            best_u, best_v = u, v
     if best_u is None or not np.isfinite(best_v):
         raise FitError(
             "no starting point with a finite posterior density was found; check the trial's "
@@ -401,6 +431,7 @@ def fit(
     seed: int = 0,
     priors: Mapping[str, Any] | None = None,
     n_elements: int = FIT_DEFAULTS.n_elements,
+    refine_mesh: bool = FIT_DEFAULTS.refine_mesh,
     initial: str = FIT_DEFAULTS.initial,
     nwalkers: int | None = FIT_DEFAULTS.nwalkers,
     target_ess: float = FIT_DEFAULTS.target_ess,
@@ -423,9 +454,10 @@ def fit(
         Seed of every random choice (starts, walkers, emcee).
     priors : mapping, optional
         Overrides of :func:`bayesbeam.inference.problem.default_priors`.
-    n_elements, initial, nwalkers, target_ess, max_steps, min_steps : optional
-        Mesh, initial-condition kind, walkers, convergence target and step budget: the
-        fields of :class:`bayesbeam.inference.settings.FitSettings`, whose defaults
+    n_elements, refine_mesh, initial, nwalkers, target_ess, max_steps, min_steps : optional
+        Starting (coarsest) mesh, whether to refine it, initial-condition kind, walkers,
+        convergence target and step budget: the fields of
+        :class:`bayesbeam.inference.settings.FitSettings`, whose defaults
         (:data:`~bayesbeam.inference.settings.FIT_DEFAULTS`) these keywords take
         (see also :func:`bayesbeam.stats.sampling.run_emcee`).
     outdir : path, optional
@@ -445,8 +477,12 @@ def fit(
     Returns
     -------
     FitResult
-        With ``derived`` quantities (``a`` for spatial hysteresis), MAP, settings and
-        provenance (package version, data SHA-256, model, priors, seed).
+        With ``derived`` quantities (``a`` for spatial hysteresis), MAP, settings,
+        provenance (package version, data SHA-256, model, priors, seed), the ``mesh``
+        record (the mesh is refined from ``n_elements`` until the MAP's prediction is
+        converged, :func:`~bayesbeam.inference.mesh.converge_mesh`; ``settings
+        ["n_elements"]`` is the final mesh) and the ``adequacy`` checks
+        (:func:`~bayesbeam.inference.adequacy.assess`).
     """
     t_start = time.perf_counter()
     sampler_kw = _sampler_options(sampler_options)  # fail before the expensive MAP
@@ -455,6 +491,11 @@ def fit(
         problem = Problem(trial, model, priors, n_elements=n_elements, initial=initial)
     rng = np.random.default_rng(seed)
     u_map, lp_map = find_map(problem, rng=rng)
+    show = progress if progress is not None else sys.stderr.isatty()
+    problem, u_map, lp_map, mesh = converge_mesh(
+        problem, u_map, lp_map, local_map, refine=refine_mesh,
+        progress=(lambda msg: print(msg, file=sys.stderr, flush=True)) if show else None,
+    )
     ndim = problem.ndim
     nwalkers = walker_count(nwalkers, ndim)
     cov = laplace_covariance(problem, u_map)
@@ -483,6 +524,7 @@ def fit(
         progress=progress,
         names=problem.names,
         moves=de_moves(),
+        preburn=PREBURN_STEPS,
         **sampler_kw,
     )
     if not coords.identity:
@@ -498,7 +540,8 @@ def fit(
     X = problem.theta(samples.reshape(-1, ndim))
     derived = {k: v.reshape(samples.shape[:2]) for k, v in problem.derived(X).items()}
     settings = {
-        "n_elements": n_elements,
+        "n_elements": problem.n_elements,
+        "refine_mesh": bool(refine_mesh),
         "initial": initial,
         "nwalkers": nwalkers,
         "target_ess": target_ess,
@@ -525,7 +568,7 @@ def fit(
             "(bayesbeam.inference.problem; a is stored as a derived quantity)",
         }
     )
-    return FitResult(
+    result = FitResult(
         model=model.name,
         chain=chain,
         priors=problem.priors,
@@ -533,4 +576,10 @@ def fit(
         settings=settings,
         provenance=provenance,
         derived=derived,
+        mesh=mesh,
     )
+    # Its own stream: the checks never change the chain's random numbers.
+    adequacy = assess(problem, result, rng=np.random.default_rng([seed, 1]))
+    if show and not adequacy["ok"]:
+        print(f"warning: {adequacy['summary']}", file=sys.stderr, flush=True)
+    return dataclasses.replace(result, adequacy=adequacy)

@@ -336,10 +336,12 @@ class Problem:
             from bayesbeam.physics.nonlinear import NonlinearForward
 
             self.forward = NonlinearForward(trial.beam, physical, trial.times, t0=trial.t0,
-                                            n_elements=n_elements, initial=initial)
+                                            n_elements=n_elements, initial=initial,
+                                            bandwidth=trial.sensor_band)
         else:
             self.forward = Forward(trial.beam, physical, trial.times, t0=trial.t0,
-                                   n_elements=n_elements, initial=initial)
+                                   n_elements=n_elements, initial=initial,
+                                   bandwidth=trial.sensor_band)
         defaults = default_priors(trial, self.model, n_elements=n_elements, initial=initial)
         names = _sampled_names(self.forward.param_names, self.model)
         if priors is not None:
@@ -371,6 +373,24 @@ class Problem:
     def ndim(self) -> int:
         """Number of sampled parameters."""
         return len(self.names)
+
+    def with_mesh(self, n_elements: int) -> Problem:
+        """Return the same trial, model, priors and initial condition on another mesh.
+
+        Parameters
+        ----------
+        n_elements : int
+
+        Returns
+        -------
+        Problem
+            ``self`` when the mesh is already ``n_elements``. The priors are kept, so
+            both problems share the sampling space.
+        """
+        if int(n_elements) == self.n_elements:
+            return self
+        return Problem(self.trial, self.model, self.priors, n_elements=int(n_elements),
+                       initial=self.initial)
 
     # -- parameter maps ---------------------------------------------------------------
     def theta(self, U: np.ndarray) -> np.ndarray:

@@ -16,7 +16,8 @@ ArviZ 1.x; walkers are the ``chain`` dimension, steps the ``draw`` dimension):
 ``observed_data``            the measured signal, if given
 ``prior``                    prior draws in physical units, if asked
 root attributes              JSON strings: ``priors``, ``settings``, ``provenance``,
-                             ``chain`` (diagnostics), ``map_u``; plain ``model``
+                             ``chain`` (diagnostics), ``map_u``, ``mesh``,
+                             ``adequacy``; plain ``model``
 
 :meth:`FitResult.save` writes that tree to ``posterior.nc`` (h5netcdf engine) and
 the summary to ``summary.json``; :meth:`FitResult.load` reads ``posterior.nc`` back.
@@ -84,6 +85,15 @@ def _frozen_mapping(m: Mapping[str, Any] | None) -> Mapping[str, Any]:
     return MappingProxyType(copy.deepcopy(dict(m or {})))
 
 
+def _plain(m: Any) -> Any:
+    """Return a frozen mapping (and nested ones) as plain dicts and lists, for JSON."""
+    if isinstance(m, Mapping):
+        return {str(k): _plain(v) for k, v in m.items()}
+    if isinstance(m, (list, tuple)):
+        return [_plain(v) for v in m]
+    return m
+
+
 def _named_arrays(value: Any, default_name: str) -> dict[str, np.ndarray]:
     if isinstance(value, Mapping):
         return {str(k): np.asarray(v, dtype=float) for k, v in value.items()}
@@ -114,6 +124,13 @@ class FitResult:
         Quantities computed from each sample in physical units (e.g. the
         spatial-hysteresis strength ``a`` when ``eta`` is sampled); summarised and
         stored in the posterior group beside the sampled parameters.
+    mesh : mapping
+        The mesh-convergence record of the fit
+        (:func:`bayesbeam.inference.mesh.converge_mesh`); empty when none was made.
+    adequacy : mapping
+        Whether the model reproduces the data to its noise
+        (:func:`bayesbeam.inference.adequacy.assess`): ``ok``, ``reasons``, figures;
+        empty when not assessed.
     """
 
     model: str
@@ -123,6 +140,8 @@ class FitResult:
     settings: Mapping[str, Any] = field(default_factory=dict)
     provenance: Mapping[str, Any] = field(default_factory=dict)
     derived: Mapping[str, np.ndarray] = field(default_factory=dict)
+    mesh: Mapping[str, Any] = field(default_factory=dict)
+    adequacy: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not isinstance(self.priors, PriorSet):
@@ -140,6 +159,8 @@ class FitResult:
             object.__setattr__(self, "map_u", m)
         object.__setattr__(self, "settings", _frozen_mapping(self.settings))
         object.__setattr__(self, "provenance", _frozen_mapping(self.provenance))
+        object.__setattr__(self, "mesh", _frozen_mapping(self.mesh))
+        object.__setattr__(self, "adequacy", _frozen_mapping(self.adequacy))
         derived = {}
         for name, arr in dict(self.derived).items():
             a = np.array(arr, dtype=float)
@@ -232,8 +253,8 @@ class FitResult:
         dict
             Keys ``model``, ``posterior`` (see :meth:`summary`), ``ess_min``,
             ``tau_max``, ``rhat_max``, ``converged``, ``seconds``, plus
-            ``diagnostics``, ``map`` (physical, or ``None``), ``priors``,
-            ``settings`` and ``provenance``. Non-finite numbers (e.g. ``tau`` of a
+            ``diagnostics``, ``map`` (physical, or ``None``), ``mesh``, ``adequacy``,
+            ``priors``, ``settings`` and ``provenance``. Non-finite numbers (e.g. ``tau`` of a
             run too short to estimate it) become ``None`` so the record is strict JSON.
         """
         d = self.diagnostics()
@@ -249,6 +270,8 @@ class FitResult:
                 "seconds": d["seconds"],
                 "diagnostics": d,
                 "map": None if mt is None else dict(zip(self.names, map(float, mt), strict=True)),
+                "mesh": _plain(self.mesh),
+                "adequacy": _plain(self.adequacy),
                 "priors": self.priors.to_dict(),
                 "settings": dict(self.settings),
                 "provenance": dict(self.provenance),
@@ -277,6 +300,10 @@ class FitResult:
                 else "   (derived)"
             )
             lines.append(f"{name:<{width}} " + " ".join(f"{row[k]:>11.4g}" for k in cols) + diag)
+        if self.mesh:
+            lines.append(f"mesh: {self.mesh.get('summary', '')}")
+        if self.adequacy:
+            lines.append(f"adequacy: {self.adequacy.get('summary', '')}")
         return "\n".join(lines)
 
     # -- ArviZ -----------------------------------------------------------------------
@@ -397,6 +424,8 @@ class FitResult:
                 "provenance": _dumps(dict(self.provenance)),
                 "chain": _dumps(_chain_meta(c)),
                 "map_u": _dumps(None if self.map_u is None else self.map_u),
+                "mesh": _dumps(_plain(self.mesh)),
+                "adequacy": _dumps(_plain(self.adequacy)),
             }
         }
         # check_conventions=False: ArviZ warns when a group has more chains than draws,
@@ -502,6 +531,9 @@ class FitResult:
             map_u=None if map_u is None else np.asarray(map_u, dtype=float),
             settings=json.loads(a["settings"]),
             provenance=json.loads(a["provenance"]),
+            # Results written before these checks existed have neither attribute.
+            mesh=json.loads(a["mesh"]) if "mesh" in a else {},
+            adequacy=json.loads(a["adequacy"]) if "adequacy" in a else {},
         )
 
     @classmethod

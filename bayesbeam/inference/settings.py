@@ -42,7 +42,11 @@ class FitSettings:
     Attributes
     ----------
     n_elements : int
-        Hermite beam elements of the forward model.
+        Hermite beam elements of the forward model: the starting (coarsest) mesh.
+    refine_mesh : bool
+        Refine the mesh until the MAP's prediction converges
+        (:func:`bayesbeam.inference.mesh.converge_mesh`); False keeps ``n_elements`` and
+        only reports the check.
     initial : str
         Initial-condition kind: ``'release'``, ``'impulse'`` or ``'modes:K'`` (see
         :class:`bayesbeam.physics.forward.Forward`).
@@ -57,6 +61,7 @@ class FitSettings:
     """
 
     n_elements: int = 16
+    refine_mesh: bool = True
     initial: str = "release"
     nwalkers: int | None = None
     target_ess: float = 1000.0

@@ -294,7 +294,8 @@ def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any
         waic_pointwise=score.waic.pointwise, p_waic_i=score.waic.p_waic_i,
     )
     if s.get("plots"):
-        record["figures"] = _plots(trial, problem, score, folder, s)
+        fitted = problem.with_mesh(int(res.settings["n_elements"]))  # the fit's final mesh
+        record["figures"] = _plots(trial, fitted, score, folder, s)
     # Timing of the whole task (fit, evidence, criteria, plots) in this worker.
     record["task_seconds"] = time.perf_counter() - t0
     record["task_cpu_seconds"] = time.process_time() - c0

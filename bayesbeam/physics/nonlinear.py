@@ -253,6 +253,10 @@ class NonlinearForward:
         5e-4 of its peak, below the O(ε) averaging error).
     steps_per_period : float
         RK4 steps of the slow flow per period of the first mode (default 0.5).
+    bandwidth : float, optional
+        Sensor bandwidth in Hz (ideal anti-alias filter, as for
+        :class:`~bayesbeam.physics.forward.Forward`): modes with ``|λ|`` above it still
+        take part in the drag (the air sees them) but are removed from the output.
 
     Attributes
     ----------
@@ -275,6 +279,7 @@ class NonlinearForward:
         initial_state: tuple[np.ndarray, np.ndarray] | None = None,
         n_modes: int | None = None,
         steps_per_period: float = 0.5,
+        bandwidth: float | None = None,
     ) -> None:
         self.model = parse_model(model)
         if "amplitude_damping" not in self.model.nonlinear:
@@ -284,7 +289,7 @@ class NonlinearForward:
             )
         linear = parse_model("+".join(p for p in self.model.parts if p not in NONLINEAR))
         self.linear = Forward(beam, linear, times, n_elements=n_elements, initial=initial,
-                              initial_state=initial_state, t0=t0)
+                              initial_state=initial_state, t0=t0, bandwidth=bandwidth)
         if n_modes is None:
             n_modes = {"displacement": 3, "velocity": 4, "acceleration": 5}[self.linear.quantity]
         if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
@@ -556,7 +561,11 @@ class NonlinearForward:
         fric = theta[:, self._i_fric]
         with np.errstate(all="ignore"):
             cm = self._complex_modes(th_lin)
-            lam, X = cm["lam"], np.where(cm["active"], cm["X"], 0.0)
+            lam = cm["lam"]
+            shown = cm["active"]
+            if self.linear.bandwidth is not None:  # the sensor's filter removes these modes
+                shown = shown & (np.abs(lam) <= 2 * np.pi * self.linear.bandwidth)
+            X = np.where(shown, cm["X"], 0.0)
             U, V, moving = self._slow_flow(cm, drag, fric)
             lam, X = lam[:, moving], X[:, moving]
             # Mode k adds 2 Re(X e^{λτ} [λ^p (ρ - 1) + p λ^{p-1} ρ']) (p-th derivative of

@@ -217,6 +217,20 @@ def markdown_to_html(text: str) -> str:
 # --------------------------------------------------------------------------- sections
 
 
+def _checks_html(summary: dict) -> str:
+    """Mesh and adequacy lines of a fit (absent in results made before these checks)."""
+    out = []
+    mesh = summary.get("mesh") or {}
+    if mesh.get("summary"):
+        cls = "" if mesh.get("converged") else "warn"
+        out.append(f'<p class="{cls}">Mesh: {_esc(mesh["summary"])}</p>')
+    ad = summary.get("adequacy") or {}
+    if ad.get("summary"):
+        cls = "" if ad.get("ok") else "warn"
+        out.append(f'<p class="{cls}">Adequacy: {_esc(ad["summary"])}</p>')
+    return "".join(out)
+
+
 def _fit_section(summary: dict, score: dict | None) -> str:
     if "_error" in summary:
         return f'<p class="warn">{_esc(summary["_error"])}</p>'
@@ -237,6 +251,7 @@ def _fit_section(summary: dict, score: dict | None) -> str:
         f"{_esc(_fmt(diag.get('n_samples'), 'd'))} samples, "
         f"{_esc(_fmt(summary.get('seconds'), '.1f'))} s.</p>"
     )
+    parts.append(_checks_html(summary))
     if score and "_error" not in score:
         rows = [[
             _pm(score.get("log_evidence"), score.get("log_evidence_err")),
@@ -282,9 +297,10 @@ def _comparison_section(comp: dict) -> str:
             _fmt(m.get("waic"), ".1f"),
             _fmt(m.get("bic"), ".1f"),
             _fmt(m.get("converged")),
+            {True: "yes", False: "NO", None: "n/a"}[m.get("adequate")],
         ])
     head = ["model", "k", "max log L", "log Z ± err", "Δ log Z", "P(M|D)", "ELPD-LOO ± se",
-            "Δ ELPD ± se", "WAIC", "BIC", "converged"]
+            "Δ ELPD ± se", "WAIC", "BIC", "converged", "adequate"]
     parts = [_table(head, rows, "comparison")]
     parts.append('<p class="muted">* tied with the best: '
                  + _esc(comp.get("tie_rule", "within the evidence error")) + "</p>")

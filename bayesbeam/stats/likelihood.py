@@ -50,6 +50,7 @@ __all__ = [
     "LikelihoodError",
     "ar1_loglik",
     "ar1_pointwise",
+    "standardized_innovations",
     "iid_loglik",
     "iid_pointwise",
     "stationary_ar1",
@@ -218,6 +219,48 @@ def ar1_pointwise(
         var = ss**2 * vf
         out[..., 1:] = -0.5 * (_LOG_2PI + np.log(var)) - 0.5 * e**2 / var
     return np.where(ok[..., None], out, -np.inf)
+
+
+def standardized_innovations(
+    r: np.ndarray, sigma: float, rho: float | None = None, *,
+    times: np.ndarray | None = None, dt_ref: float | None = None,
+) -> np.ndarray:
+    """Residuals turned into the i.i.d. N(0, 1) series the likelihood assumes.
+
+    i.i.d. noise: ``r / sigma``. AR(1): the first term ``r_0 / sigma`` and the one-step
+    prediction errors ``(r_t - phi_t r_{t-1}) / (sigma sqrt(1 - phi_t^2))``, the terms of
+    :func:`ar1_pointwise`. Under a correct model these are white with unit variance;
+    whiteness tests (:mod:`bayesbeam.stats.whiteness`) are applied to them.
+
+    Parameters
+    ----------
+    r : ndarray, shape (T,)
+        Residuals (data - model).
+    sigma : float
+        Marginal noise standard deviation, units of ``r``.
+    rho : float, optional
+        Lag-one correlation of AR(1) noise; None for i.i.d. noise.
+    times, dt_ref : optional
+        As for :func:`ar1_pointwise` (non-uniform stamps).
+
+    Returns
+    -------
+    ndarray, shape (T,)
+    """
+    r = np.asarray(r, dtype=float)
+    if r.ndim != 1 or not (np.isfinite(sigma) and sigma > 0):
+        raise LikelihoodError(
+            f"need a 1-D residual series and sigma > 0, got shape {r.shape} and sigma={sigma!r}"
+        )
+    if rho is None:
+        return r / sigma
+    phi, vf, ok = _lag_powers(np.asarray(float(rho)), times, dt_ref, r.size)
+    if not bool(ok):
+        raise LikelihoodError(f"rho = {rho!r} is outside the AR(1) support")
+    out = np.empty_like(r)
+    out[0] = r[0] / sigma
+    out[1:] = (r[1:] - phi * r[:-1]) / (sigma * np.sqrt(vf))
+    return out
 
 
 def ar1_loglik(

@@ -69,7 +69,9 @@ __all__ = [
     "de_moves",
     "init_walkers",
     "make_log_prob",
+    "preburn_walkers",
     "run_emcee",
+    "STRANDED_NATS",
 ]
 
 
@@ -238,6 +240,83 @@ def _rng_state(seed: int) -> tuple:
     return np.random.RandomState(np.random.MT19937(seed)).get_state()
 
 
+#: A walker counts as stranded when its log-probability lies this far below the
+#: ensemble's median plus ``ndim / 2``: for a posterior near Gaussian, ``max - lp`` of a
+#: walker in equilibrium is ``χ²_d / 2`` (median about d/2), so 25 nats beyond the median
+#: has probability below 1e-10 for d <= 20. Emcee's ensemble moves cannot bring such a
+#: walker back (its proposals along lines to far-away walkers are rejected), and it
+#: holds the chain's τ and R-hat away from convergence for the whole run.
+STRANDED_NATS = 25.0
+
+
+def preburn_walkers(
+    log_prob: Callable[[np.ndarray], np.ndarray],
+    u0: np.ndarray,
+    lp0: np.ndarray,
+    steps: int,
+    *,
+    seed: int,
+    moves: Any = None,
+    block: int = 50,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Run a discarded burn-in that puts stranded walkers back into the ensemble.
+
+    Every ``block`` steps, walkers whose log-probability lies more than
+    :data:`STRANDED_NATS` ``+ ndim/2`` below the median are moved onto the positions of
+    walkers drawn from the rest (with a jitter of 1e-3 of the rest's spread); the run
+    ends with a last block without resets, so the returned state is one the ensemble
+    reached by its own moves. Nothing of this run is part of the posterior sample.
+
+    Parameters
+    ----------
+    log_prob : callable
+        Vectorised log-probability, ``(k, ndim) -> (k,)``.
+    u0 : ndarray, shape (nwalkers, ndim)
+    lp0 : ndarray, shape (nwalkers,)
+        ``log_prob(u0)``, finite.
+    steps : int
+        Steps in all (at least ``2 * block``, or one block without resets).
+    seed : int
+        Seed of this run's random numbers (its own stream, so the recorded chain's is
+        unchanged).
+    moves : optional
+        emcee moves.
+    block : int
+        Steps between checks.
+
+    Returns
+    -------
+    u, lp : ndarray
+        Final positions (nwalkers, ndim) and their log-probabilities (nwalkers,).
+    """
+    nwalkers, ndim = u0.shape
+    rng = np.random.default_rng([int(seed), 0x5157])
+    sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True, moves=moves)
+    sampler.random_state = _rng_state(int(rng.integers(2**32)))
+    state = emcee.State(np.array(u0, dtype=float), log_prob=np.array(lp0, dtype=float),
+                        random_state=sampler.random_state)
+    n_blocks = max(1, int(steps) // block)
+    for k in range(n_blocks):
+        state = sampler.run_mcmc(state, block, progress=False, store=False)
+        if k == n_blocks - 1:
+            break  # the last block runs free
+        lp = state.log_prob
+        cut = np.median(lp) - STRANDED_NATS - ndim / 2
+        bad = np.flatnonzero(lp < cut)
+        good = np.flatnonzero(lp >= cut)
+        if bad.size == 0 or good.size < 2:
+            continue
+        spread = np.std(state.coords[good], axis=0)
+        src = rng.choice(good, size=bad.size)
+        new = state.coords[src] + 1e-3 * spread * rng.standard_normal((bad.size, ndim))
+        new_lp = np.asarray(log_prob(new), dtype=float)
+        ok = np.isfinite(new_lp)
+        coords, lps = state.coords.copy(), lp.copy()
+        coords[bad[ok]], lps[bad[ok]] = new[ok], new_lp[ok]
+        state = emcee.State(coords, log_prob=lps, random_state=state.random_state)
+    return np.array(state.coords), np.array(state.log_prob)
+
+
 class _Progress:
     """Minimal one-line progress report on stderr (emcee's own needs tqdm)."""
 
@@ -398,6 +477,7 @@ def run_emcee(
     progress: bool | None = None,
     names: Sequence[str] | None = None,
     moves: Any = None,
+    preburn: int = 0,
 ) -> Chain:
     """Sample with emcee until converged (see the module notes) or ``max_steps``.
 
@@ -444,6 +524,10 @@ def run_emcee(
         Parameter names (default ``p0, p1, ...``).
     moves : optional
         emcee moves, passed to :class:`emcee.EnsembleSampler` (default stretch move).
+    preburn : int, default 0
+        Steps of a first, discarded run (in memory, before the recorded chain) in
+        which stranded walkers are moved back to the ensemble (:func:`preburn_walkers`).
+        Only on a fresh start; a resumed checkpoint continues as it was.
 
     Returns
     -------
@@ -520,6 +604,8 @@ def run_emcee(
                 f"walkers {bad} start where log_prob is -inf (outside the prior support "
                 "or an invalid model); start them inside, e.g. with init_walkers"
             )
+        if preburn > 0:
+            u0, lp0 = preburn_walkers(fn, u0, lp0, preburn, seed=seed, moves=moves)
         state = emcee.State(u0, log_prob=lp0, random_state=sampler.random_state)
     else:
         # emcee restored the RNG state saved with the last step; continue from there.

@@ -1,7 +1,8 @@
 """Measured and simulated records.
 
 Measured or simulated records: the :class:`Trial` record, trial files, public real-data
-loaders, synthetic trials, and modal identification from a record's samples.
+loaders, synthetic trials, modal identification from a record's samples, and the
+record's noise floor from a model-free fit of damped sinusoids.
 
 Layer: above :mod:`bayesbeam.physics` and :mod:`bayesbeam.stats`.
 """
@@ -25,12 +26,16 @@ _EXPORTS = {
     "load_enes": ".realdata",
     "load_hrshm": ".realdata",
     "ModalEstimate": ".modal_id",
+    "noise_floor": ".noise",
+    "NoiseFloor": ".noise",
+    "NoiseFloorError": ".noise",
     "periodogram": ".modal_id",
     "read_trial": ".io",
     "RealDataError": ".realdata",
     "RealRecord": ".realdata",
     "resolve_root": ".realdata",
     "SignatureError": ".modal_id",
+    "simulate_sensor": ".synthetic",
     "simulate_signal": ".synthetic",
     "simulate_trial": ".synthetic",
     "spectral_peak": ".modal_id",

@@ -12,6 +12,8 @@ in ``data/README.md``)::
     quantity = "displacement"        # displacement | velocity | acceleration
     unit = "mm"                      # m, mm, m/s, mm/s, m/s^2, g (g = 9.80665 m/s^2)
     sensor_position = 0.3048         # m from the clamp
+    bandwidth = 100.0                # Hz, optional: the sensor's anti-alias band
+                                     # (default sampling rate / 2.56; inf: unfiltered)
 
     [beam]                           # read with Beam.from_dict (SI units)
     length = 0.3048
@@ -55,7 +57,7 @@ _SIGNAL_REQUIRED = (
     "unit",
     "sensor_position",
 )
-_SIGNAL_OPTIONAL = ("t0", "delimiter")
+_SIGNAL_OPTIONAL = ("t0", "delimiter", "bandwidth")
 _TOP_KEYS = ("name", "format_version", "signal", "beam", "initial", "meta")
 FORMAT_VERSION = 1
 
@@ -202,6 +204,7 @@ def read_trial(path: str | Path) -> Trial:
     if not isinstance(name, str):
         raise TrialError(f"{path}: name must be a string, got {name!r}")
     t0 = signal.get("t0")
+    bandwidth = signal.get("bandwidth")
 
     csv_path = path.parent / file
     if not csv_path.is_file():
@@ -228,6 +231,7 @@ def read_trial(path: str | Path) -> Trial:
             t0=t0,
             initial=initial,
             meta=meta,
+            bandwidth=bandwidth,
         )
     except TrialError as err:
         raise TrialError(f"{csv_path} (columns {time_column!r}, {value_column!r}): {err}") from None
@@ -383,6 +387,8 @@ def write_trial(trial: Trial, path: str | Path, *, unit: str | None = None) -> P
         },
         "beam": beam,
     }
+    if trial.bandwidth is not None:
+        doc["signal"]["bandwidth"] = trial.bandwidth
     if trial.initial:
         doc["initial"] = dict(trial.initial)
     if meta:

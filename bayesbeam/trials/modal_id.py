@@ -371,7 +371,8 @@ def _fit_modes(t: np.ndarray, y: np.ndarray, f0: np.ndarray, s0: np.ndarray, *,
         except np.linalg.LinAlgError:
             return np.full(J.shape[1], np.inf)
 
-    return {"p": p, "se": se_of(res.jac), "coef": coef, "se_lin": se_of(B), "K": K}
+    return {"p": p, "se": se_of(res.jac), "coef": coef, "se_lin": se_of(B), "K": K,
+            "resid": r}
 
 
 def _as_series(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

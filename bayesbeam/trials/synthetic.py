@@ -10,9 +10,9 @@ from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import Forward, ForwardError
 from bayesbeam.physics.models import parse_model
 from bayesbeam.trials.io import write_trial
-from bayesbeam.trials.trial import Trial
+from bayesbeam.trials.trial import BANDWIDTH_PER_RATE, Trial
 
-__all__ = ["simulate_signal", "simulate_trial"]
+__all__ = ["simulate_sensor", "simulate_signal", "simulate_trial"]
 
 
 def simulate_signal(
@@ -23,6 +23,7 @@ def simulate_signal(
     *,
     n_elements: int = 16,
     initial: str = "release",
+    bandwidth: float | None = None,
 ) -> np.ndarray:
     """Noise-free sensor signal of one parameter set.
 
@@ -39,18 +40,27 @@ def simulate_signal(
     n_elements : int
     initial : str
         See :class:`bayesbeam.physics.forward.Forward`.
+    bandwidth : float, optional
+        Sensor bandwidth in Hz (ideal anti-alias filter, see
+        :class:`~bayesbeam.physics.forward.Forward`); None: the default of a trial with
+        these stamps (median sampling rate / 2.56,
+        :attr:`~bayesbeam.trials.trial.Trial.sensor_band`); ``inf``: every mode.
 
     Returns
     -------
     ndarray, shape (T,)
         Signal in SI units of ``beam.quantity``.
     """
+    if bandwidth is None and np.size(times) >= 2:
+        bandwidth = BANDWIDTH_PER_RATE / float(np.median(np.diff(np.asarray(times, float))))
     if parse_model(model).nonlinear:
         from bayesbeam.physics.nonlinear import NonlinearForward
 
-        fwd = NonlinearForward(beam, model, times, n_elements=n_elements, initial=initial)
+        fwd = NonlinearForward(beam, model, times, n_elements=n_elements, initial=initial,
+                               bandwidth=bandwidth)
     else:
-        fwd = Forward(beam, model, times, n_elements=n_elements, initial=initial)
+        fwd = Forward(beam, model, times, n_elements=n_elements, initial=initial,
+                      bandwidth=bandwidth)
     p = dict(params)
     if "E" not in p and beam.E is not None:
         p["E"] = beam.E
@@ -82,6 +92,7 @@ def simulate_trial(
     n_elements: int = 16,
     name: str = "synthetic",
     out: str | Path | None = None,
+    bandwidth: float | None = None,
 ) -> Trial:
     """Simulate a release test and optionally write it as a trial (TOML + CSV).
 
@@ -105,6 +116,10 @@ def simulate_trial(
     name : str
     out : path, optional
         Where to write the trial TOML.
+    bandwidth : float, optional
+        Sensor bandwidth in Hz, stored in the trial; None: the trial default
+        (:attr:`~bayesbeam.trials.trial.Trial.sensor_band`, sampling rate / 2.56). The
+        signal is what a sensor with that band records (``inf``: no filter).
 
     Returns
     -------
@@ -124,7 +139,7 @@ def simulate_trial(
         raise ForwardError(f"duration {duration} s at dt {dt} s gives fewer than 2 samples")
     times = np.arange(n) * dt
     p = {**params, "w0": tip_deflection}
-    y = simulate_signal(beam, model, p, times, n_elements=n_elements)
+    y = simulate_signal(beam, model, p, times, n_elements=n_elements, bandwidth=bandwidth)
     rng = np.random.default_rng(seed)
     y = y + noise_sd * rng.standard_normal(n)
     truth = {
@@ -147,7 +162,92 @@ def simulate_trial(
         # write_trial keeps [meta] but not `source`: the true parameters must survive the
         # round trip through the file (recovery studies compare fits against them).
         meta={"synthetic": truth},
+        bandwidth=bandwidth,
     )
     if out is not None:
         write_trial(trial, out)
     return trial
+
+
+def simulate_sensor(
+    beam: Beam,
+    model: str,
+    params: dict[str, float],
+    times: np.ndarray,
+    *,
+    t0: float = 0.0,
+    bandwidth: float | None = None,
+    n_elements: int = 64,
+    oversample: int = 16,
+    initial: str = "release",
+) -> np.ndarray:
+    """Noise-free signal as a real sensor records it: fine mesh, all modes, FIR anti-alias.
+
+    An independent route to test data (no inverse crime against a fit's forward model):
+    the beam is simulated on a fine mesh with *every* mode (no ideal band limit) on a
+    uniform grid ``oversample`` times faster than the record, passed through a
+    zero-phase Kaiser-window FIR low-pass (pass band up to ``bandwidth``, stop band from
+    the record's Nyquist frequency, 80 dB) as a delta-sigma converter's decimation filter
+    would, and interpolated onto ``times`` (cubic spline of the filtered fine signal; its
+    error is ``O((2π f h)^4)``, below 1e-7 of the signal in the pass band for
+    ``oversample >= 16``).
+
+    Parameters
+    ----------
+    beam : Beam
+    model : str
+        Linear model name, e.g. ``'viscous+kv'``.
+    params : dict
+        Physical and initial-condition parameters (SI), ``E`` defaulting to ``beam.E``.
+    times : ndarray, shape (T,)
+        Record stamps in s (non-uniform allowed), all at least one filter half-length
+        after ``t0`` (the filter must have settled after the release: the error says how
+        long that is).
+    t0 : float
+        Release (or impact) instant in s.
+    bandwidth : float, optional
+        Pass-band edge in Hz; default the sampling rate (inverse median step) / 2.56.
+    n_elements : int
+        Mesh of the generating model.
+    oversample : int
+        Rate of the fine grid over the record's rate.
+    initial : str
+        See :class:`bayesbeam.physics.forward.Forward`.
+
+    Returns
+    -------
+    ndarray, shape (T,)
+        Signal in SI units of ``beam.quantity``.
+    """
+    import scipy.interpolate
+    import scipy.signal
+
+    t = np.asarray(times, dtype=float)
+    if t.ndim != 1 or t.size < 2 or np.any(np.diff(t) <= 0):
+        raise ForwardError("times must be a strictly increasing 1-D array (s)")
+    fs = 1.0 / float(np.median(np.diff(t)))
+    band = BANDWIDTH_PER_RATE * fs if bandwidth is None else float(bandwidth)
+    if not 0 < band < fs / 2:
+        raise ForwardError(f"bandwidth must lie in (0, {fs / 2:g}) Hz, got {band!r}")
+    fs_fine = oversample * fs
+    numtaps, beta = scipy.signal.kaiserord(80.0, (fs / 2 - band) / (fs_fine / 2))
+    numtaps |= 1  # odd: a symmetric filter with an integer delay, removed below
+    half = numtaps // 2
+    settle = half / fs_fine
+    if t[0] - t0 < settle:
+        raise ForwardError(
+            f"the first stamp ({t[0]:g} s) must come at least {settle:.4g} s after t0 = {t0:g} s "
+            "(the anti-alias filter's half length); drop the earlier samples"
+        )
+    taps = scipy.signal.firwin(numtaps, 0.5 * (band + fs / 2), window=("kaiser", beta),
+                               fs=fs_fine)
+    n_fine = int(np.ceil((t[-1] - t0) * fs_fine)) + half + 2
+    fine_t = t0 + np.arange(n_fine) / fs_fine
+    y = simulate_signal(beam, model, params, fine_t, n_elements=n_elements, initial=initial,
+                        bandwidth=np.inf)
+    # Zero-phase: full convolution, then shift by the filter delay. Outputs before t0 +
+    # settle would mix in the (unsimulated) pre-release signal and are never used.
+    yf = scipy.signal.fftconvolve(y, taps)[half : half + n_fine]
+    keep = slice(half, n_fine - half)
+    spline = scipy.interpolate.CubicSpline(fine_t[keep], yf[keep])
+    return spline(t)

@@ -30,6 +30,7 @@ import scipy.signal
 from bayesbeam.physics.beam import QUANTITIES, Beam
 
 __all__ = [
+    "BANDWIDTH_PER_RATE",
     "STANDARD_GRAVITY",
     "UNIFORM_RTOL",
     "UNITS",
@@ -58,6 +59,13 @@ _SI_UNIT = {"displacement": "m", "velocity": "m/s", "acceleration": "m/s^2"}
 #: most 2 pi f 1e-3 dt, i.e. < 0.004 rad below the Nyquist frequency; LabVIEW-style
 #: stamps rounded to 1 us at ~1.6 kHz sampling (0.17 % jitter) should be regenerated.
 UNIFORM_RTOL = 1e-3
+
+#: Default sensor bandwidth as a fraction of the sampling rate, 1/2.56: the anti-alias
+#: convention of dynamic signal analysers (an analyser sampling at fs shows fs/2.56 Hz,
+#: e.g. 400 lines from 1024 samples) and about the pass band of the decimation filters of
+#: delta-sigma converters (0.39-0.45 fs). Content between this and fs/2 is in the filter's
+#: transition band, neither passed nor stopped reliably.
+BANDWIDTH_PER_RATE = 1 / 2.56
 
 _INITIAL_KEYS = {"tip_deflection": "m", "tip_impulse": "N s", "note": None}
 
@@ -200,6 +208,9 @@ class Trial:
         ``tip_impulse`` (N s), ``note`` (str).
     meta : dict
         Free-form metadata (TOML-serialisable values).
+    bandwidth : float or None
+        Sensor bandwidth in Hz as given (``[signal] bandwidth``; ``inf`` for a sensor
+        without an anti-alias filter); None: the default :attr:`sensor_band`.
 
     Notes
     -----
@@ -216,6 +227,7 @@ class Trial:
     t0: float | None = None
     initial: dict[str, Any] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+    bandwidth: float | None = None
 
     def __post_init__(self) -> None:
         t = _as_series(self.times, "times")
@@ -263,6 +275,15 @@ class Trial:
         object.__setattr__(self, "source", source)
         object.__setattr__(self, "initial", _check_initial(self.initial))
         object.__setattr__(self, "meta", dict(self.meta))
+        if self.bandwidth is not None:
+            bw = self.bandwidth
+            if (isinstance(bw, (bool, np.bool_)) or not isinstance(bw, (int, float, np.number))
+                    or math.isnan(bw) or not bw > 0):
+                raise TrialError(
+                    f"bandwidth must be a positive number of Hz (inf: no anti-alias filter), "
+                    f"got {bw!r}"
+                )
+            object.__setattr__(self, "bandwidth", float(bw))
 
     # -- properties -------------------------------------------------------------------
     def __len__(self) -> int:
@@ -285,6 +306,17 @@ class Trial:
         For non-uniform stamps this is only the mean step; check :attr:`is_uniform`.
         """
         return self.duration / (self.times.size - 1)
+
+    @property
+    def sensor_band(self) -> float:
+        """Sensor bandwidth in Hz: :attr:`bandwidth` if given, else the default.
+
+        The default is :data:`BANDWIDTH_PER_RATE` times the sampling rate (the inverse
+        of the median step); ``inf`` means no anti-alias filter.
+        """
+        if self.bandwidth is not None:
+            return self.bandwidth
+        return BANDWIDTH_PER_RATE / float(np.median(np.diff(self.times)))
 
     @property
     def is_uniform(self) -> bool:
@@ -389,7 +421,10 @@ class Trial:
                 f"{2 * half + 1} samples plus 2 outputs; use a longer record or a smaller factor"
             )
         idx = k[keep]
-        return self._derived(t[idx * q], yd[idx], step)
+        out = self._derived(t[idx * q], yd[idx], step)
+        # The decimation filter limits the band to that of the new rate.
+        band = min(self.sensor_band, BANDWIDTH_PER_RATE / (q * float(np.median(np.diff(t)))))
+        return dataclasses.replace(out, bandwidth=band)
 
     def resample(self, dt: float) -> Trial:
         """Resample onto a uniform grid of step ``dt`` (s) with an anti-alias filter.

@@ -17,7 +17,7 @@ from bayesbeam.inference.settings import (
 def test_fit_settings_take_the_defaults_and_reject_unknown_names():
     full = fit_settings({"max_steps": 50}, caller="evaluate")
     assert tuple(full) == tuple(f.name for f in dataclasses.fields(FitSettings))
-    assert full == {"n_elements": 16, "initial": "release", "nwalkers": None,
+    assert full == {"n_elements": 16, "refine_mesh": True, "initial": "release", "nwalkers": None,
                     "target_ess": 1000.0, "max_steps": 50, "min_steps": 300}
     with pytest.raises(TypeError, match=r"evaluate\(\) got an unexpected keyword .*'max_step'"):
         fit_settings({"max_step": 50}, caller="evaluate")

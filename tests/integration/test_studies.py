@@ -83,8 +83,11 @@ def test_trials_describe_what_a_user_knows(make_data):
             # The nominal release deflection is the true one to the nearest mm.
             w_true = truth[spec.name]["tip_deflections"][j]
             assert abs(t.initial["tip_deflection"] - w_true) <= 0.0005 + 1e-12
-            # The record starts at the release deflection (plus noise of ~11 µm sd).
-            assert abs(t.values[0] - w_true) < 6e-5
+            # The record starts at the release deflection (plus noise of ~11 µm sd), less
+            # the share of the modes above the vibrometer's 100 Hz band (2 % at most here:
+            # mode 2 of beam 3; a mode's share of a tip-load deflection falls as 1/ω²).
+            assert t.bandwidth == pytest.approx(100.0)
+            assert abs(t.values[0] - w_true) < 6e-5 + 0.025 * w_true
 
 
 def test_first_frequency_in_the_data_matches_the_generating_beam(make_data):

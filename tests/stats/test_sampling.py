@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import warnings
 from pathlib import Path
 
 import emcee
@@ -293,3 +294,54 @@ def test_make_log_prob_skips_likelihood_outside_support():
     np.testing.assert_allclose(out[[0, 2]], expected, rtol=1e-15)
     assert len(seen) == 1 and seen[0].shape == (2, 2)  # one batched call, in-support rows
     np.testing.assert_allclose(seen[0][:, 0], [1e10, 2e9], rtol=1e-14)
+
+
+# -- stranded walkers ------------------------------------------------------------------
+def _gauss_lp(U):
+    U = np.atleast_2d(U)
+    return -0.5 * np.sum(U**2, axis=1)
+
+
+def test_preburn_returns_stranded_walkers_to_the_ensemble():
+    from bayesbeam.stats.sampling import STRANDED_NATS, preburn_walkers
+
+    rng = np.random.default_rng(0)
+    u0 = 0.1 * rng.standard_normal((16, 3))
+    u0[:2] += 30.0  # two walkers 450 nats below the rest: emcee alone keeps them out
+    lp0 = _gauss_lp(u0)
+    u, lp = preburn_walkers(_gauss_lp, u0, lp0, 200, seed=1)
+    assert np.all(lp > np.median(lp) - STRANDED_NATS - 1.5)
+    assert np.all(np.abs(u) < 8)
+    np.testing.assert_allclose(lp, _gauss_lp(u))
+    # Same seed, same result; the recorded chain's stream is not used.
+    u2, _ = preburn_walkers(_gauss_lp, u0, lp0, 200, seed=1)
+    assert np.array_equal(u, u2)
+
+
+def _two_modes_lp(U):
+    # Main mode at 0; a second one 20 sd away and 40 nats lower. Stretch moves never
+    # propose less than halfway towards another walker, into the empty valley, so a
+    # walker started in the minor mode stays there.
+    U = np.atleast_2d(U)
+    a = -0.5 * np.sum(U**2, axis=1)
+    shift = U.copy()
+    shift[:, 0] -= 20.0
+    b = -40.0 - 0.5 * np.sum(shift**2, axis=1)
+    return np.logaddexp(a, b)
+
+
+def test_run_emcee_with_preburn_converges_where_stranded_walkers_would_not():
+    rng = np.random.default_rng(2)
+    u0 = 0.1 * rng.standard_normal((16, 3))
+    u0[0, 0] += 20.0
+    kw = {"seed": 3, "max_steps": 4000, "min_steps": 300, "target_ess": 300, "progress": False}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        stuck = run_emcee(_two_modes_lp, u0, **kw)
+    # The walker never left the minor mode: 1/16 of the "posterior" sits 20 sd away.
+    assert np.min(np.max(stuck.samples[..., 0], axis=0)) < 5
+    assert np.max(stuck.samples[..., 0]) > 15
+    ch = run_emcee(_two_modes_lp, u0, preburn=200, **kw)
+    assert ch.converged
+    assert np.max(ch.samples[..., 0]) < 8
+    np.testing.assert_allclose(ch.samples.reshape(-1, 3).mean(axis=0), 0.0, atol=0.15)

@@ -358,3 +358,36 @@ def test_readme_example_is_a_valid_trial(tmp_path, repo_root):
     assert tr.beam.beam_mass == pytest.approx(0.021, rel=1e-12)
     assert tr.beam.root_spring == 150.0 and len(tr.beam.segments) == 1
     assert tr.initial["tip_deflection"] == 0.005
+
+
+# -- sensor band -----------------------------------------------------------------------
+def test_default_sensor_band_is_rate_over_2_56():
+    tr = _trial()  # 250 Hz sampling
+    assert tr.bandwidth is None
+    assert tr.sensor_band == pytest.approx(250.0 / 2.56, rel=1e-12)
+
+
+@pytest.mark.parametrize("band", [40.0, float("inf")])
+def test_bandwidth_round_trips(tmp_path, band):
+    tr = _trial(bandwidth=band)
+    back = read_trial(write_trial(tr, tmp_path / "t.toml"))
+    assert back.bandwidth == band
+    assert back.sensor_band == band
+
+
+def test_bandwidth_read_from_signal_table(tmp_path):
+    p = _write_files(tmp_path, "time,w\n0,0\n0.01,1\n0.02,0\n", bandwidth=12.5)
+    assert read_trial(p).sensor_band == 12.5
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), "wide", True])
+def test_bad_bandwidth(bad):
+    with pytest.raises(TrialError, match="bandwidth"):
+        _trial(bandwidth=bad)
+
+
+def test_decimation_narrows_the_band():
+    tr = _trial(n=400, bandwidth=100.0)
+    assert tr.decimate(4).sensor_band == pytest.approx(250.0 / 4 / 2.56, rel=1e-9)
+    narrow = _trial(n=400, bandwidth=10.0)
+    assert narrow.decimate(2).sensor_band == 10.0  # already narrower than the new rate's

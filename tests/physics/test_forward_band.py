@@ -1,0 +1,114 @@
+"""The sensor band of the forward model (ideal anti-alias filter on the eigen-solutions).
+
+References that no code here shares with the filter: (i) once the modes above the band
+have decayed, the band-limited signal must equal the full one (nothing in band is
+touched); (ii) the fast route for classically damped sets and the eigenvector route for
+coupled ones must give the same signal; (iii) a least-squares decomposition of the signal
+into the system's eigen-solutions finds those above the band removed and the others
+untouched.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bayesbeam.physics import propagate
+from bayesbeam.physics.beam import Beam
+from bayesbeam.physics.forward import Forward, ForwardError, band_limit
+
+L, W, TH, RHO = 0.4, 0.0508, 0.002, 2700.0
+E = 70e9
+T = np.arange(2048) / 512.0
+
+
+def _beam(quantity: str = "acceleration") -> Beam:
+    return Beam.rectangular(length=L, width=W, thickness=TH, mass=L * W * TH * RHO,
+                            E=E).replace(quantity=quantity)
+
+
+KV = {"E": E, "gamma": 0.106, "c_d": 4.33e6, "w0": 0.005}
+SH = {"E": E, "gamma": 0.05, "a": 2e-3, "b": 0.05, "w0": 0.005}
+
+
+@pytest.mark.parametrize("quantity", ["displacement", "acceleration"])
+def test_band_limited_equals_full_once_high_modes_decay(quantity):
+    full = Forward(_beam(quantity), "viscous+kv", T, n_elements=24).simulate(KV)
+    band = Forward(_beam(quantity), "viscous+kv", T, n_elements=24, bandwidth=200.0).simulate(KV)
+    assert full.valid[0] and band.valid[0]
+    peak = np.max(np.abs(full.y[0]))
+    late = T >= 0.5  # Kelvin-Voigt: modes 4+ (>= 354 Hz) decay at >= 150 /s, e^-75 by 0.5 s
+    # 1e-9 of the peak: propagation round-off of the 48-dof full system (physics.md §4).
+    assert np.max(np.abs(full.y[0, late] - band.y[0, late])) <= 1e-9 * peak
+    # ...and the filter did remove something at the start.
+    assert np.max(np.abs(full.y[0, :20] - band.y[0, :20])) > 1e-3 * peak
+
+
+def _eigen_coefficients(fwd: Forward, params: dict, y: np.ndarray):
+    """Least-squares amplitudes of every eigen-solution e^{λt} of the system in ``y``."""
+    A, _, _ = fwd.state_space(fwd._columns(params))
+    lam = propagate.eigenvalues(A)[0]
+    t = fwd.times - fwd.times[0]
+    basis = np.exp(np.outer(t, lam))
+    coef, *_ = np.linalg.lstsq(basis, y.astype(complex), rcond=None)
+    return lam, coef
+
+
+@pytest.mark.parametrize(("model", "params"), [("viscous+kv", KV), ("viscous+sh", SH)])
+def test_band_limit_removes_exactly_the_eigen_solutions_above_the_band(model, params):
+    # Four elements: 8 modes, 16 eigen-solutions, so the signal is an exact sum of 16
+    # exponentials and a least-squares decomposition on 2048 samples recovers each one
+    # (SH couples the modes: its eigen-solutions are not those of the undamped modes).
+    bw = 120.0  # between modes 2 (64 Hz) and 3 (181 Hz)
+    full = Forward(_beam("displacement"), model, T, n_elements=4)
+    band = Forward(_beam("displacement"), model, T, n_elements=4, bandwidth=bw)
+    lam, c_full = _eigen_coefficients(full, params, full.simulate(params).y[0])
+    _, c_band = _eigen_coefficients(full, params, band.simulate(params).y[0])
+    inb = np.abs(lam) <= 2 * np.pi * bw
+    assert np.count_nonzero(inb) == 4  # modes 1 and 2, each a conjugate pair
+    # Solutions that decay by more than e^-2 per sample are indistinguishable from one
+    # another on the samples (their columns are ~[1, 0, 0, ...]); they are left out.
+    seen = np.abs(lam.real) * (T[1] - T[0]) < 2.0
+    out = ~inb & seen
+    scale = np.max(np.abs(c_full))
+    assert np.max(np.abs(c_full[out])) > 1e-4 * scale  # present without the filter
+    # 1e-8 of the largest amplitude: conditioning of the exponential basis.
+    assert np.max(np.abs(c_band[out])) <= 1e-8 * scale
+    np.testing.assert_allclose(c_band[inb], c_full[inb], rtol=0, atol=1e-8 * scale)
+
+
+def test_classical_and_eigenvector_routes_agree():
+    fwd = Forward(_beam(), "viscous+kv", T, n_elements=16)
+    theta = fwd._columns(KV)
+    omega, C, phi, z0 = fwd.modal_initial_state(theta)
+    h = fwd._output(omega, C, phi)
+    wb = 2 * np.pi * 200.0
+    A = propagate.state_matrix(omega, C)
+    A1, z1, h1 = band_limit(A, z0, h, omega, C, wb)
+    # Coupling the kept modes to the first dropped one by 1e-8 of their frequency gap
+    # (above the fast route's 1e-10) sends the set down the eigenvector route; its own
+    # effect on the signal is of order 1e-8.
+    kept = int(np.count_nonzero(omega[0] <= wb))
+    Cp = C.copy()
+    for i in range(kept):
+        Cp[0, i, kept] = Cp[0, kept, i] = 1e-8 * (omega[0, kept] - omega[0, i])
+    Ap = propagate.state_matrix(omega, Cp)
+    A2, z2, h2 = band_limit(Ap, z0, h, omega, Cp, wb)
+    assert A1.shape[1] < A.shape[1]  # the fast route drops the modes
+    assert A2.shape == A.shape  # the eigenvector route projects the state
+    y1 = propagate.response_uniform(A1, z1, h1, T[1] - T[0], T.size)
+    y2 = propagate.response_uniform(A2, z2, h2, T[1] - T[0], T.size)
+    assert np.max(np.abs(y1 - y2)) <= 1e-6 * np.max(np.abs(y1))
+
+
+def test_unlimited_band_is_the_full_model():
+    y0 = Forward(_beam(), "viscous+kv", T[:256], n_elements=12).simulate(KV).y
+    y1 = Forward(_beam(), "viscous+kv", T[:256], n_elements=12,
+                 bandwidth=float("inf")).simulate(KV).y
+    np.testing.assert_array_equal(y0, y1)
+
+
+@pytest.mark.parametrize("bad", [0.0, -5.0, float("nan"), "100", True])
+def test_bad_bandwidth_is_refused(bad):
+    with pytest.raises(ForwardError, match="bandwidth"):
+        Forward(_beam(), "viscous", T[:10], n_elements=4, bandwidth=bad)
