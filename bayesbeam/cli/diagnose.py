@@ -72,6 +72,7 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--candidates", default=None,
                     help="comma-separated subset of the catalogue (default: all)")
     opts.add_elements_option(sp)
+    opts.add_fixed_mesh_option(sp)
     opts.add_preprocessing_options(sp)
     sp.add_argument("--priors", type=Path, default=None,
                     help="TOML file with [priors.NAME] tables, applied to every model "

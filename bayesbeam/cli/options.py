@@ -206,7 +206,7 @@ def fit_settings(args: argparse.Namespace) -> dict[str, Any]:
     ----------
     args : argparse.Namespace
         Parsed options with ``seed``, ``elements``, ``target_ess``, ``max_steps`` and
-        (fit, compare) ``fixed_mesh``.
+        (fit, compare, diagnose) ``fixed_mesh``.
 
     Returns
     -------
@@ -220,7 +220,7 @@ def fit_settings(args: argparse.Namespace) -> dict[str, Any]:
         "target_ess": args.target_ess,
         "max_steps": args.max_steps,
     }
-    if hasattr(args, "fixed_mesh"):  # fit and compare refine the mesh; diagnose does not
+    if hasattr(args, "fixed_mesh"):  # the commands that fit (fit, compare, diagnose)
         out["refine_mesh"] = not args.fixed_mesh
     return out
 

@@ -62,7 +62,9 @@ GAMMA = 2 * BEAM.rhoA * W1 * 0.003  # viscous ζ1 = gamma / (2 rhoA ω1)
 CD = 2 * E * 0.0008 / W1  # KV ζ1 = c_d ω1 / (2 E)
 N_EL = 8
 # Cheap but adequate sampler budget for the confirmations (see diagnose's docstring).
-BUDGET = dict(n_elements=N_EL, nwalkers=24, target_ess=200.0, min_steps=200, max_steps=400,
+# The records come from the same N_EL-element mesh (cheap), so the mesh is kept:
+# refining it would only move the model away from the data's own discretisation.
+BUDGET = dict(n_elements=N_EL, refine_mesh=False, nwalkers=24, target_ess=200.0, min_steps=200, max_steps=400,
               confirm_top=2, loo_draws=300, signatures=False)
 
 
@@ -180,8 +182,8 @@ def test_smoke_offset_named_and_cli(tmp_path):
     trial = Trial(times=t, values=y + 0.01 * rms * rng.standard_normal(t.size) + 0.1 * rms,
                   quantity="displacement", beam=BEAM, name="smoke")
     d = diagnose(trial, "viscous", seed=0, max_rounds=1, candidates=("sensor_offset", "kv"),
-                 n_elements=4, nwalkers=12, target_ess=50.0, min_steps=100, max_steps=100,
-                 loo_draws=100, signatures=False)
+                 n_elements=4, refine_mesh=False, nwalkers=12, target_ess=50.0,
+                 min_steps=100, max_steps=100, loo_draws=100, signatures=False)
     assert d.named_causes == ("sensor_offset",)
     r = d.rounds[0]
     assert r.delta_log_evidence - 2 * r.delta_log_evidence_err > 3
@@ -197,7 +199,7 @@ def test_smoke_offset_named_and_cli(tmp_path):
     register(parser.add_subparsers())
     args = parser.parse_args(["diagnose", str(path), "--baseline", "viscous", "-o",
                               str(tmp_path / "out"), "--json", "--max-rounds", "1",
-                              "--candidates", "sensor_offset", "--elements", "4",
+                              "--candidates", "sensor_offset", "--elements", "4", "--fixed-mesh",
                               "--max-steps", "100", "--target-ess", "50"])
     assert args.func(args) == 0
     out = json.loads((tmp_path / "out" / "diagnosis.json").read_text())

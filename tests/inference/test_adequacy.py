@@ -1,15 +1,17 @@
 """Model adequacy (bayesbeam.inference.adequacy) and the calibration cases of the issue.
 
-The data come from an independent route: a 64-element model with every mode, sampled 16x
-faster, through a Kaiser FIR anti-alias filter and interpolated onto the record's stamps
-(:func:`bayesbeam.trials.synthetic.simulate_sensor`), so no mesh of the fit reproduces
-them exactly (no inverse crime). The beam is a 0.4 m aluminium strip, 50.8 x 2 mm,
-released from a 5 mm tip deflection; accelerometer at the tip, 512 Hz, noise 0.02 m/s².
+The records are those of ``studies/adequacy_cases.py``: an independent route (a 64-element
+model with every mode, sampled 16x faster, through a Kaiser FIR anti-alias filter and
+interpolated onto the record's stamps), so no mesh of the fit reproduces them exactly (no
+inverse crime). A 0.4 m aluminium strip, 50.8 x 2 mm, released from a 5 mm tip
+deflection; accelerometer at the tip, 512 Hz, noise 0.02 m/s².
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,38 +19,22 @@ import pytest
 from bayesbeam.inference.adequacy import LIMITS, assess
 from bayesbeam.inference.fit import fit
 from bayesbeam.inference.problem import Problem
-from bayesbeam.physics.beam import Beam, Segment
-from bayesbeam.trials.synthetic import simulate_sensor
-from bayesbeam.trials.trial import Trial
-
-L, W, TH, RHO = 0.4, 0.0508, 0.002, 2700.0
-TRUE = {"E": 70e9, "gamma": 0.106, "c_d": 4.33e6, "w0": 0.005}
-NOISE = 0.02  # m/s^2
 
 
-def _beam(quantity="acceleration", added_mass=0.0, position=L - 0.067):
-    m0 = L * W * TH * RHO
-    kw = {}
-    if added_mass:
-        # A 5 g sensor glued over 1 cm around `position` (m from the clamp).
-        f = 1 + added_mass / (m0 / L * 0.01)
-        kw["segments"] = (Segment(position - 0.005, position + 0.005, rhoA=f),)
-    return Beam.rectangular(length=L, width=W, thickness=TH, mass=m0 + added_mass, E=70e9,
-                            **kw).replace(quantity=quantity)
+def _load_study():
+    path = Path(__file__).resolve().parents[2] / "studies" / "adequacy_cases.py"
+    spec = importlib.util.spec_from_file_location("adequacy_cases", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
-def _record(*, jitter=False, added_mass=0.0, n=2048, seed=0):
-    rng = np.random.default_rng(seed)
-    if jitter:  # each step within ±15 % of 1/512 s
-        steps = (1 + rng.uniform(-0.15, 0.15, n - 1)) / 512.0
-        t = 0.06 + np.concatenate([[0.0], np.cumsum(steps)])
-    else:
-        t = 0.06 + np.arange(n) / 512.0
-    y = simulate_sensor(_beam(added_mass=added_mass), "viscous+kv", TRUE, t)
-    y = y + NOISE * rng.standard_normal(n)
-    # The user's description: the nominal strip (any added mass is unknown to them).
-    return Trial(times=t, values=y, quantity="acceleration", beam=_beam(), t0=0.0,
-                 initial={"tip_deflection": TRUE["w0"]}, name="al-strip")
+CASES = _load_study()  # the records' builder: one implementation, shared with the study
+TRUE, NOISE, MASS = CASES.TRUE, CASES.NOISE, CASES.MASS
+
+
+def _record(**kw):
+    return CASES.record(**kw)
 
 
 def test_true_model_is_adequate_and_a_wrong_one_is_not(gaussian_cloud_result):
@@ -63,7 +49,7 @@ def test_true_model_is_adequate_and_a_wrong_one_is_not(gaussian_cloud_result):
     assert good["noise_ratio"] == pytest.approx(1.0, abs=0.1)
     assert good["summary"].startswith("adequate")
 
-    bad_trial = dataclasses.replace(_record(n=1024, added_mass=0.005), name="mass")
+    bad_trial = dataclasses.replace(_record(n=1024, added_mass=MASS), name="mass")
     pb2 = Problem(bad_trial, "viscous+kv", n_elements=32)
     bad = assess(pb2, gaussian_cloud_result(pb2, truth, 1e-6), rng=rng, n_draws=100)
     assert not bad["ok"]
@@ -98,7 +84,7 @@ def test_default_fit_of_an_independent_acceleration_record_is_calibrated(jitter)
 @pytest.mark.slow
 def test_fit_that_leaves_out_a_mass_says_it_is_not_adequate():
     # 5 g, 6.7 cm inboard of the tip, fitted with viscous+kv on the nominal beam.
-    res = fit(_record(added_mass=0.005), "viscous+kv", progress=False)
+    res = fit(_record(added_mass=MASS), "viscous+kv", progress=False)
     ad = res.adequacy
     assert not ad["ok"]
     assert ad["noise_ratio"] > LIMITS["noise_ratio"]
