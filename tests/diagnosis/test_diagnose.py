@@ -64,8 +64,8 @@ N_EL = 8
 # Cheap but adequate sampler budget for the confirmations (see diagnose's docstring).
 # The records come from the same N_EL-element mesh (cheap), so the mesh is kept:
 # refining it would only move the model away from the data's own discretisation.
-BUDGET = dict(n_elements=N_EL, refine_mesh=False, nwalkers=24, target_ess=200.0, min_steps=200, max_steps=400,
-              confirm_top=2, loo_draws=300, signatures=False)
+BUDGET = dict(n_elements=N_EL, refine_mesh=False, nwalkers=24, target_ess=200.0, min_steps=200,
+              max_steps=400, confirm_top=2, loo_draws=300, signatures=False)
 
 
 @pytest.fixture(autouse=True, scope="module")
