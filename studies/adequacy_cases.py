@@ -96,7 +96,7 @@ def main() -> None:
         for name, x in truth.items():
             r = s[name]
             inside = "inside" if r["q05"] <= x <= r["q95"] else "OUTSIDE"
-            print(f"  {name:6s} 90 % [{r['q05']:.5g}, {r['q95']:.5g}]  truth {x:.5g}  {inside}")
+            print(f"  {name:6s} 90 % [{r['q05']:.7g}, {r['q95']:.7g}]  truth {x:.7g}  {inside}")
         ad = res.adequacy
         print(f"  adequacy ok={ad['ok']}: noise ratio {ad['noise_ratio']:.3g}, Ljung-Box p "
               f"{ad['ljung_box']['p']:.2g}, line p {ad['spectral_line']['p']:.2g}, "

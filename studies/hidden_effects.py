@@ -58,7 +58,7 @@ from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.nonlinear import NonlinearForward, amplitude_damping_scales
 from bayesbeam.stats.likelihood import stationary_ar1
 from bayesbeam.trials.synthetic import simulate_signal
-from bayesbeam.trials.trial import Trial
+from bayesbeam.trials.trial import BANDWIDTH_PER_RATE, Trial
 
 L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9
 BEAM = Beam.rectangular(L, WIDTH, THICK, RHO * L * WIDTH * THICK, E=E)
@@ -69,8 +69,10 @@ N_EL = 8
 #: Size factors relative to the reference sizes.
 SIZES = (1.0, 0.3, 0.1, 0.03, 0.01)
 #: Sampler budget per confirmation (as in the tests).
-BUDGET = {"n_elements": N_EL, "nwalkers": 24, "target_ess": 200.0, "min_steps": 200,
-          "max_steps": 400, "confirm_top": 2, "loo_draws": 300, "signatures": False}
+# The records come from the same N_EL-element mesh, so the diagnosis keeps it.
+BUDGET = {"n_elements": N_EL, "refine_mesh": False, "nwalkers": 24, "target_ess": 200.0,
+          "min_steps": 200, "max_steps": 400, "confirm_top": 2, "loo_draws": 300,
+          "signatures": False}
 SMALL_BUDGET = {**BUDGET, "max_steps": 150, "min_steps": 100, "target_ess": 30.0,
                 "loo_draws": 100}
 
@@ -125,7 +127,8 @@ def make_trial(cause: str, size: float, quantity: str, seed: int = 0) -> tuple[T
     else:
         raise ValueError(f"unknown cause {cause!r}")
     if cause == "amplitude_damping":
-        fwd = NonlinearForward(beam, model, t, n_elements=N_EL, initial=initial)
+        fwd = NonlinearForward(beam, model, t, n_elements=N_EL, initial=initial,
+                               bandwidth=BANDWIDTH_PER_RATE / float(t[1] - t[0]))
         p = {"E": E, **params, **ic}
         y = fwd.simulate({k: np.array([p[k]]) for k in fwd.param_names}).y[0]
     else:

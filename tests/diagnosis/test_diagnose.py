@@ -52,7 +52,7 @@ from bayesbeam.physics.beam import Beam
 from bayesbeam.stats.likelihood import stationary_ar1
 from bayesbeam.trials.io import write_trial
 from bayesbeam.trials.synthetic import simulate_signal
-from bayesbeam.trials.trial import Trial
+from bayesbeam.trials.trial import BANDWIDTH_PER_RATE, Trial
 
 L, WIDTH, THICK, RHO, E = 0.4, 0.025, 0.002, 2700.0, 70e9
 BEAM = Beam.rectangular(L, WIDTH, THICK, RHO * L * WIDTH * THICK, E=E)
@@ -117,7 +117,8 @@ def make_trial(model, params, quantity, *, seed=0, duration=1.0, fs=512.0, rho=N
     if "amplitude_damping" in model:
         from bayesbeam.physics.nonlinear import NonlinearForward
 
-        fwd = NonlinearForward(beam, model, t, n_elements=N_EL, initial=initial)
+        fwd = NonlinearForward(beam, model, t, n_elements=N_EL, initial=initial,
+                               bandwidth=BANDWIDTH_PER_RATE * fs)  # the trial's default band
         p = {"E": E, **params, **ic}
         res = fwd.simulate({k: np.array([p[k]]) for k in fwd.param_names})
         assert res.valid[0]
