@@ -28,15 +28,16 @@ Findings (full setting, seed 0, one run on 2 shared cores, 4-11 min per record)
   (e.g. 39.06 Hz measured vs 37.89 Hz at 50 cm); its residuals are strongly
   autocorrelated (lag-1 0.6-0.9, Ljung-Box p ~ 0) and 5-18 % of the data's RMS.
 * Named causes: 30 cm: ``ar1_noise`` (Δ log Z = 205; only modes 1-2 below 0.8
-  Nyquist, f2/f1 not measurable in the 2 s window), then ``amplitude_damping`` (drag,
-  33.1 ± 0.5; weak: Δ ELPD 16 ± 21, decay-rate signature 1.6 se, a second sampling of
-  the same model 6 nats lower; before the drag prior was set at the mode-1 tip
-  amplitude it was screened but not confirmed). 40 cm: ``ar1_noise`` (569), then
+  Nyquist, f2/f1 not measurable in the 2 s window), then ``drag`` (33.1 ± 0.5; weak:
+  Δ ELPD 16 ± 21, decay-rate signature 1.6 se, a second sampling of the same model 6
+  nats lower; before the drag prior was set at the mode-1 tip amplitude it was screened
+  but not confirmed. This run predates the split of drag and friction into separate
+  causes: the cause then added both, and its fit had friction ≈ 0). 40 cm: ``ar1_noise`` (569), then
   ``stiffness_gradient`` (649) with ``tip_mass`` and ``root_spring`` equivalent (within
   2.2 nats). 50 cm: ``stiffness_gradient`` (2428; tip mass 54 and root spring 51 nats
   lower), then ``ar1_noise`` (193). 60 cm: ``stiffness_gradient`` (2693), ``ar1_noise``
   (493), ``sensor_offset`` (54). Steel (hammer tap): ``stiffness_gradient`` (127,
-  f2/f1 -0.2 %), then nothing. ``amplitude_damping`` is named nowhere else.
+  f2/f1 -0.2 %), then nothing. Drag or friction is named nowhere else.
 * Gains: the structural extension cuts the RMS residual 11-15 fold at 50 and 60 cm
   (0.94 → 0.085 and 1.18 → 0.081 m/s²; 90 % coverage 0.87 → 0.95 and 0.92 → 0.96),
   1.5 fold at 40 cm (0.72 → 0.49, after AR(1)). E moves toward the nominal 70 GPa
@@ -115,8 +116,8 @@ def n_modes(trial) -> int:
     return max(1, sum(1 for r in RATIOS if r * f1 < 0.8 * nyq))
 
 
-def summarise(label: str, d, seconds: float) -> str:
-    """Markdown lines for one record."""
+def summarise(label: str, d, seconds: float, length: float) -> str:
+    """Markdown lines for one record (``length``: the beam's free length in m)."""
     lines = [f"## {label}", "", f"Baseline `{d.baseline}` → final model `{d.final_model}` "
              f"({seconds:.0f} s).", "", "What the uniform-beam model gets wrong:", ""]
     if d.signatures_before is not None:
@@ -132,9 +133,15 @@ def summarise(label: str, d, seconds: float) -> str:
         )
         for k, v in r.parameter_moves.items():
             b, a = v["before"], v["after"]
-            if math.isfinite(b[0]) or k in ("tip_mass", "root_spring", "stiffness_gradient",
+            if math.isfinite(b[0]) or k in ("tip_mass", "added_mass", "added_mass_position",
+                                            "root_spring", "stiffness_gradient",
                                             "rho", "offset", "drag", "friction"):
                 lines.append(f"    - {k}: {b[0]:.4g} ± {b[1]:.2g} → {a[0]:.4g} ± {a[1]:.2g}")
+        if "added_mass_position" in r.parameter_moves:  # the units a bench engineer uses
+            x, x_sd = r.parameter_moves["added_mass_position"]["after"]
+            m, m_sd = r.parameter_moves["added_mass"]["after"]
+            lines.append(f"    - added mass {1e3 * m:.2f} ± {1e3 * m_sd:.2f} g at "
+                         f"{1e2 * (length - x):.1f} ± {1e2 * x_sd:.1f} cm from the tip")
     if d.notes:
         lines += ["", f"{len(d.notes)} reliability note(s), e.g.: {d.notes[0][:160]}"]
     return "\n".join(lines) + "\n"
@@ -180,7 +187,7 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
                      initial=f"modes:{k}", progress=log, **kw)
         seconds = time.perf_counter() - t0
         results[label] = {**d.to_json_dict(), "initial": f"modes:{k}", "seconds_total": seconds}
-        text = summarise(label, d, seconds)
+        text = summarise(label, d, seconds, trial.beam.length)
         md.append(text)
         print(text, flush=True)
     (outdir / "real_data.json").write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")

@@ -56,8 +56,9 @@ def register(subparsers: Any) -> None:
         "diagnose",
         help="name the cause of a model discrepancy from a catalogue and measure the gain",
         description=(
-            "Fit the baseline, try every catalogue extension (kv, sh, tip_mass, root_spring, "
-            "stiffness_gradient, amplitude_damping, ar1_noise, sensor_offset), name the one "
+            "Fit the baseline, try every catalogue extension (kv, sh, tip_mass, added_mass, "
+            "root_spring, stiffness_gradient, drag, friction, ar1_noise, sensor_offset), name "
+            "the one "
             "with the largest significant gain in log evidence (Δ log Z - 2 err > 3 nats), "
             "extend the model and repeat. Writes diagnosis.json, report.md and signature "
             "figures to OUTDIR. SI units throughout."

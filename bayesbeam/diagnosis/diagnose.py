@@ -9,9 +9,13 @@ cause                     model extension (parameters)
 ========================  ===========================================================
 ``kv``, ``sh``            an internal damping law (``c_d``; ``eta``, ``b``)
 ``tip_mass``              concentrated tip mass (``tip_mass``, kg)
+``added_mass``            a point mass anywhere on the span (``added_mass``, kg, at
+                          ``added_mass_position``, m from the clamp): sensors, cables, glue
 ``root_spring``           rotational clamp compliance (``root_spring``, N m/rad)
 ``stiffness_gradient``    EI(x) ∝ 1 + g (x/L - 1/2) (``stiffness_gradient``)
-``amplitude_damping``     quadratic air drag and clamp friction (``drag``, ``friction``)
+``drag``                  quadratic air drag (``drag``, kg/m²): damping grows with amplitude
+``friction``              dry clamp friction on mode 1 (``friction``, N): damping grows as
+                          the amplitude falls
 ``ar1_noise``             AR(1) correlated residuals (``rho``)
 ``sensor_offset``         constant offset of the signal (``offset``)
 ========================  ===========================================================
@@ -27,9 +31,12 @@ Procedure of one round (current model M)
    from the data's modal estimates (:func:`bayesbeam.trials.modal_id.damped_sinusoids`):
    a structural parameter solved so that the model's f2/f1 equals the measured one,
    E so that f1 matches, the damping coefficients from the measured decay rates of
-   modes 1 and 2 (non-negative least squares on σ_n ≈ C_nn/2), and drag or friction
-   at 0.25-2 times the measured ζ1 (:meth:`~bayesbeam.physics.nonlinear.NonlinearForward.
-   equivalent_damping` at the measured first-mode amplitude). The statistic is the
+   modes 1 and 2 (non-negative least squares on σ_n ≈ C_nn/2), and the drag (or the
+   friction, whichever the candidate adds) at 0.25-2 times the measured ζ1
+   (:meth:`~bayesbeam.physics.nonlinear.NonlinearForward.equivalent_damping` at the
+   measured first-mode amplitude). ``drag`` and ``friction`` are separate candidates,
+   each tried on its own in every round, so one candidate never adds both. The
+   statistic is the
    gain in maximum log-likelihood ``Δχ²/2 = max log L(M+X) - max log L(M)``; the
    Laplace Δ log Z (:func:`bayesbeam.stats.evidence.laplace_evidence`) is recorded where
    both MAPs are interior. Adding a parameter multiplies the evidence by its Occam
@@ -56,7 +63,8 @@ Procedure of one round (current model M)
    beside it, and a note is made when it points the other way beyond 2 se.
 4. **Tie to a signature**: the residual signature of M that points the same way is
    reported (:func:`signature_support`): f2/f1 shift for the structural causes,
-   decay rate vs amplitude for ``amplitude_damping``, Ljung–Box whiteness and lag-1
+   mode-1 decay rate vs amplitude for ``drag`` (faster at large amplitude) and
+   ``friction`` (faster at small amplitude), Ljung–Box whiteness and lag-1
    autocorrelation for ``ar1_noise``, mean / low-frequency residual for
    ``sensor_offset``, frequency dependence of the modal damping for ``kv``/``sh``.
 5. **Measure the gain**: Δ log Z ± err, Δ ELPD ± se, RMS residual and 90 %
@@ -66,9 +74,21 @@ Procedure of one round (current model M)
 Then M ← M+X and the next round starts, up to ``max_rounds`` (default 3).
 
 Cost: each screen is one MAP search (0.2-2 s for a 512-sample record and 8 elements
-on one core; 5-15 s with amplitude damping, whose forward model is ~5x slower); each
+on one core; 5-15 s with drag or friction, whose forward model is ~5x slower); each
 confirmation one emcee run plus bridge sampling (5-20 s at the test budget of 400
 steps x 24 walkers). A round costs about 8 screens and 2-4 confirmations.
+
+What separates the structural causes (a uniform 0.4 m strip, 32 elements; a point mass
+of 8 % of the beam mass): a mass at the tip moves f2/f1 by +3 % and f3/f1 by +5 %, the
+same mass at 0.85 L by +8 % and +9 %, at 0.5 L by -5 % and +2 % (f2/f1 rises when the
+mass sits near mode 2's node, ~0.78 L, falls near its antinode); a root spring raises
+f2/f1 by only ~0.3 % for a 4 % drop of f1, a stiffness gradient moves all ratios
+smoothly. So f2/f1 alone leaves a curve of (position, mass) pairs, one of them at the
+tip; f3/f1 and the modal amplitudes at the sensor (a mass near a mode's node hardly
+changes that mode) pick the position. Where the record holds only two modes the data
+cannot tell an inboard mass from a heavier tip mass: the diagnosis then names the one
+with fewer parameters (``tip_mass``) and lists ``added_mass`` as equivalent. An added
+mass at x = L is a tip mass, so a model holding one is never extended by the other.
 
 Known limits: a tip mass and a root spring have exactly the same natural frequencies
 when μ = m_t/(rhoA L) = 1/κ (physics.md §3 gives the same frequency equation for
@@ -114,8 +134,8 @@ __all__ = [
 
 #: The catalogue of causes, in the order they are tried (names are model parts).
 CATALOGUE: tuple[str, ...] = (
-    "kv", "sh", "tip_mass", "root_spring", "stiffness_gradient", "amplitude_damping",
-    "ar1_noise", "sensor_offset",
+    "kv", "sh", "tip_mass", "added_mass", "root_spring", "stiffness_gradient", "drag",
+    "friction", "ar1_noise", "sensor_offset",
 )
 #: A cause is significant when Δ log Z - 2 err exceeds this (nats; Bayes factor > 20).
 SIGNIFICANCE = 3.0
@@ -153,24 +173,32 @@ def signature_support(cause: str, sig: Any) -> tuple[bool | None, str]:
         if not math.isfinite(s):
             return None, "f2/f1 not measurable (mode 2 not seen)"
         txt = (f"f2/f1 of the data is {100 * s:+.2f} ± {100 * e:.2f} % off the model's; on a "
-               "uniform strip a tip mass of 8 % of the beam mass raises f2/f1 by ~3 %, a root "
+               "uniform strip a point mass of 8 % of the beam mass moves it by -5 % at 0.5 L, "
+               "+8 % at 0.85 L and +3 % at the tip (f3/f1 by +2, +9 and +5 %), a root "
                "spring lowering f1 by 4 % raises it by only ~0.3 %, a stiffness falling 30 % "
                "toward the tip lowers it by ~3.5 %")
         big = abs(s) > 2 * e
-        if cause == "stiffness_gradient":
+        if cause in ("stiffness_gradient", "added_mass"):
+            # An inboard mass lowers f1 more than f2 near mode 2's node (~0.78 L) and f2
+            # more than f1 near its antinode (~0.47 L): either sign.
             return big, txt
         return bool(big and s > 0), txt
-    if cause == "amplitude_damping":
+    if cause in ("drag", "friction"):
         d, e = sig.decay_excess_diff, sig.decay_excess_diff_err
         if not (math.isfinite(d) and e < 1.0):
             return None, ("decay rate vs amplitude not measurable on this record (the "
                           "amplitude falls too little, or mode 1 is too weak)")
-        way = ("faster at large amplitude (drag)" if d > 0
-               else "faster at small amplitude (friction)")
-        return bool(abs(d) > 2 * e), (
-            "mode-1 decay rate changes with amplitude beyond the model: its excess at the "
-            f"initial amplitude is {100 * d:+.0f} ± {100 * e:.0f} % of the small-amplitude "
-            f"rate, {way}")
+        # Drag damps more at large amplitude (excess > 0), friction more at small (< 0).
+        agrees = d > 2 * e if cause == "drag" else d < -2 * e
+        way = ("faster at large amplitude, as drag would make it" if d > 0
+               else "faster at small amplitude, as friction would make it")
+        want = ("drag needs it significantly positive (faster at large amplitude)"
+                if cause == "drag" else
+                "friction needs it significantly negative (faster at small amplitude)")
+        return bool(agrees), (
+            "mode-1 decay rate vs amplitude beyond the model: its excess at the initial "
+            f"amplitude is {100 * d:+.0f} ± {100 * e:.0f} % of the small-amplitude rate, "
+            f"{way}; {want}")
     if cause == "ar1_noise":
         return bool(not sig.white and sig.lag1 > 0.2), (
             f"residuals autocorrelated: lag-1 {sig.lag1:.2f}, Ljung–Box p = {sig.ljung_box_p:.2g}")
@@ -214,8 +242,14 @@ def _moves(before: _State, after: _State) -> dict[str, Any]:
 # --------------------------------------------------------------------------- diagnose
 
 
+#: Causes that contain each other: an added mass at x = L is a tip mass, so a model
+#: holding one is never extended by the other (the pair would be unidentifiable).
+_NESTED = {"tip_mass": "added_mass", "added_mass": "tip_mass"}
+
+
 def _valid_candidates(model: Model, candidates: Sequence[str]) -> list[str]:
-    return [c for c in candidates if c not in model.parts]
+    return [c for c in candidates
+            if c not in model.parts and _NESTED.get(c) not in model.parts]
 
 
 def diagnose(

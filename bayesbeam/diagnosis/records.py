@@ -213,6 +213,23 @@ class Diagnosis:
         """``"none"`` or the named causes joined by ``" + "``."""
         return " + ".join(self.named_causes) if self.named_causes else "none"
 
+    @property
+    def final_posterior(self) -> dict[str, dict[str, float | None]]:
+        """Posterior summary of the final model, SI units.
+
+        Returns
+        -------
+        dict
+            ``{param: {mean, sd, q05, q50, q95}}`` for every sampled and derived
+            parameter of :attr:`final_model`; empty when that model was not sampled.
+        """
+        res = self.fits.get(self.final_model)
+        if res is None:
+            return {}
+        keys = ("mean", "sd", "q05", "q50", "q95")
+        return {p: {k: finite_or_none(float(v[k])) for k in keys}
+                for p, v in res.summary().items()}
+
     def to_json_dict(self) -> dict[str, Any]:
         """Return the strict-JSON record written by ``bayesbeam diagnose --json``.
 
@@ -221,7 +238,8 @@ class Diagnosis:
         dict
             ``named_causes``, ``rounds`` (see :meth:`Round.to_json_dict`),
             ``final_model``, ``baseline``, ``verdict``, ``final_check``,
-            ``thresholds``, ``signatures`` (before/after), ``notes``, ``seconds``.
+            ``thresholds``, ``signatures`` (before/after), ``final_posterior``
+            (:attr:`final_posterior`), ``notes``, ``seconds``.
         """
         sig = {
             k: (None if s is None else s.to_json_dict())
@@ -237,6 +255,7 @@ class Diagnosis:
             "final_check": None if self.final_check is None else self.final_check.to_json_dict(),
             "thresholds": dict(self.thresholds),
             "signatures": sig,
+            "final_posterior": self.final_posterior,
             "notes": list(self.notes),
             "seconds": finite_or_none(self.seconds),
         }

@@ -98,7 +98,7 @@ class _Engine:
         return self.states[model.name]
 
     def features(self) -> dict[str, float]:
-        """Measured f1, f2 and decay rates of the data (for physics-based starts)."""
+        """Measured f1, f2 (f3) and decay rates of the data (for physics-based starts)."""
         if self._features is None:
             from bayesbeam.inference.problem import first_frequency
             from bayesbeam.trials.modal_id import (
@@ -127,8 +127,11 @@ class _Engine:
                     feats[f"a{k}"] = e.amplitude
                     if e.decay_rate > 0:
                         feats[f"sigma{k}"] = e.decay_rate
+            if len(est) > 2 and est[2] is not None and "f2" in feats:
+                feats["f3"] = est[2].frequency  # places an added mass along the span
             if est[0] is None:
                 feats.pop("f2", None)  # a ratio needs both
+                feats.pop("f3", None)
             else:
                 # Amplitude dependence of the first mode's decay (starts for drag).
                 dva = decay_rate_vs_amplitude(t, y, est[0].frequency,
@@ -241,6 +244,11 @@ class _Engine:
                 else:
                     v[s] = float(grid[i])
                 variants.append(v)
+            if "added_mass" in new:
+                v = dict(base)
+                for other in struct:
+                    v[other] = neutral[other]
+                variants += _added_mass_starts(pb, lin, v, feats)
         rows = []
         for v in variants:
             th = _fwd_row(pb, lin, v)
@@ -249,9 +257,13 @@ class _Engine:
             v["E"] = float(np.clip(E, *pb.priors["E"].bounds))
             _set_damping(pb, lin, v, feats)
             rows.append([v[n] for n in names])
-        if "drag" in new and "a1" in feats and "sigma1" in feats:
+        # Starts for whichever amplitude-dependent damping the candidate adds (drag and
+        # friction are separate candidates; a model fitted from scratch may have both).
+        amp_new = tuple(n for n in ("drag", "friction") if n in new)
+        if amp_new and "a1" in feats and "sigma1" in feats:
             v0 = variants[0] if variants else base
-            rows += [[v[n] for n in names] for v in _amplitude_starts(pb, lin, v0, feats)]
+            rows += [[v[n] for n in names]
+                     for v in _amplitude_starts(pb, lin, v0, feats, amp_new)]
         return rows
 
     # -- sampling and scoring ---------------------------------------------------------
@@ -334,8 +346,10 @@ def _neutral(pb: Any, name: str) -> float:
         return float(np.std(pb.data))
     if name == "E":
         return float(np.sqrt(lo * hi)) if np.isfinite(hi) else float(lo)
-    if name == "tip_mass":
+    if name in ("tip_mass", "added_mass"):
         return 1.001 * lo  # even 0.3 % of the beam mass shifts f1 by ~0.6 %
+    if name == "added_mass_position":
+        return 0.5 * L  # with a neutral mass the position hardly matters
     if np.isfinite(lo) and lo > 0:
         # Damping coefficients, drag, friction: the prior's lower end (even that is not
         # quite neutral: KV at ζ1 = 1e-6 still damps the highest FE modes visibly in an
@@ -367,8 +381,9 @@ def _fwd_row(pb: Any, lin: Any, v: Mapping[str, float]) -> np.ndarray:
 
 
 def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
-                      feats: Mapping[str, float]) -> list[dict[str, float]]:
-    """Return starts whose drag (or friction) damps mode 1 about as much as the data show.
+                      feats: Mapping[str, float],
+                      which: Sequence[str] = ("drag", "friction")) -> list[dict[str, float]]:
+    """Return starts whose drag or friction damps mode 1 about as much as the data show.
 
     The tip amplitude of mode 1 comes from its measured amplitude at the sensor
     (divided by ω1 per time derivative, scaled by the mode shape's tip/sensor ratio);
@@ -380,6 +395,26 @@ def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
     and, when the data's decay rate changes with amplitude beyond 2 standard errors
     (:func:`bayesbeam.trials.modal_id.decay_rate_vs_amplitude`: rate σ0 (1 + c) at the first
     sample), drag giving c σ0/ω1 with the linear damping giving σ0.
+
+    Parameters
+    ----------
+    pb : Problem
+        A problem whose model has ``drag`` or ``friction`` (otherwise no starts).
+    lin : Forward
+        Its linear part.
+    v : mapping
+        Sampled values (SI units) the starts are built from.
+    feats : mapping
+        The data's modal estimates (:meth:`_Engine.features`): ``f1`` (Hz), ``a1``
+        (sensor units), ``sigma1`` (1/s), optionally ``excess``, ``excess_se``, ``rate0``.
+    which : sequence of str
+        The parameters to start (``drag``, ``friction``); those the model lacks are
+        skipped.
+
+    Returns
+    -------
+    list of dict
+        Start points, name → value.
     """
     fwd = pb.forward
     if not hasattr(fwd, "equivalent_damping"):
@@ -392,8 +427,12 @@ def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
     amp = feats["a1"] / om[0, 0] ** order * ratio
     X = np.array([[v[n] for n in pb.names]])
     P = pb.forward_params(X)[0]
-    P[list(fwd.param_names).index("drag")] = 1.0
-    P[list(fwd.param_names).index("friction")] = 1.0
+    which = [n for n in which if n in fwd.param_names]
+    if not which:
+        return []
+    for n in ("drag", "friction"):
+        if n in fwd.param_names:
+            P[list(fwd.param_names).index(n)] = 1.0
     zd, zf = fwd.equivalent_damping(P[None], amp)
     w1 = 2 * np.pi * feats["f1"]
     zeta1 = feats["sigma1"] / w1
@@ -410,10 +449,10 @@ def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],
 
     out = []
     for name, per_unit, factors in (("drag", zd[0], (0.5, 2.0)), ("friction", zf[0], (0.25, 1.0))):
-        if np.isfinite(per_unit) and per_unit > 0:
+        if name in which and np.isfinite(per_unit) and per_unit > 0:
             out += [start(name, fac * zeta1, per_unit, 1 / (1 + fac)) for fac in factors]
     c, c_se, s0 = feats.get("excess", 0.0), feats.get("excess_se", np.inf), feats.get("rate0", 0.0)
-    if c > 2 * c_se and s0 > 0 and np.isfinite(zd[0]) and zd[0] > 0:
+    if "drag" in which and c > 2 * c_se and s0 > 0 and np.isfinite(zd[0]) and zd[0] > 0:
         out.append(start("drag", c * s0 / w1, zd[0], s0 / feats["sigma1"]))
     return out
 
@@ -432,6 +471,54 @@ def _root_on_ratio(pb: Any, lin: Any, v: Mapping[str, float], name: str, u_lo: f
         return float(om[0, 1] / om[0, 0] - target)
 
     return float(prior.from_u(sopt.brentq(miss, u_lo, u_hi, xtol=1e-10, maxiter=60)))
+
+
+def _added_mass_starts(pb: Any, lin: Any, v: Mapping[str, float],
+                       feats: Mapping[str, float], n_keep: int = 3) -> list[dict[str, float]]:
+    """Return starts for a point mass anywhere on the span from the measured f2/f1 and f3/f1.
+
+    At each of 15 positions from 0.3 L to the tip the mass that gives the measured f2/f1
+    is solved for (where the prior's range brackets it; a mass near mode 2's node, about
+    0.78 L, lowers f1 and hardly f2, one near 0.5 L lowers f2 more than f1, so f2/f1
+    alone leaves a curve of (position, mass) pairs). Where f3 was measured, the pairs
+    whose f3/f1 is closest to it are kept; otherwise ``n_keep + 1`` pairs spread along
+    the curve (the likelihood, whose phase over the record depends on every frequency,
+    is multimodal along it).
+    """
+    if "f2" not in feats:
+        return []
+    L = pb.trial.beam.length
+    prior = pb.priors["added_mass"]
+    jm, jx = lin.param_names.index("added_mass"), lin.param_names.index("added_mass_position")
+    lo, hi = prior.bounds_u
+    grid_u = np.linspace(lo, hi, 41)[1:-1]
+    positions = L * np.linspace(0.3, 1.0, 15)
+    row = _fwd_row(pb, lin, v)
+    th = np.repeat(row[None], positions.size * grid_u.size, axis=0)
+    th[:, jx] = np.repeat(positions, grid_u.size)
+    th[:, jm] = np.tile(prior.from_u(grid_u), positions.size)
+    om, _, _ = lin.modal_system(th)
+    target = feats["f2"] / feats["f1"]
+    miss = (om[:, 1] / om[:, 0] - target).reshape(positions.size, grid_u.size)
+    found = []
+    for k, x in enumerate(positions):
+        sign = np.flatnonzero(miss[k, :-1] * miss[k, 1:] < 0)
+        if sign.size == 0:
+            continue
+        i = int(sign[0])  # the smallest mass that matches: the least disturbing start
+        w = {**v, "added_mass_position": float(x)}
+        w["added_mass"] = _root_on_ratio(pb, lin, w, "added_mass", grid_u[i], grid_u[i + 1],
+                                         target)
+        found.append(w)
+    if not found:
+        return []
+    if "f3" in feats and om.shape[1] > 2:
+        th = np.array([_fwd_row(pb, lin, w) for w in found])
+        o, _, _ = lin.modal_system(th)
+        score = np.abs(o[:, 2] / o[:, 0] - feats["f3"] / feats["f1"])
+        return [found[i] for i in np.argsort(score)[:n_keep]]
+    idx = np.unique(np.linspace(0, len(found) - 1, n_keep + 1).round().astype(int))
+    return [found[i] for i in idx]
 
 
 def _set_damping(pb: Any, lin: Any, v: dict[str, float], feats: Mapping[str, float]) -> None:

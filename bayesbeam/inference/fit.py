@@ -158,8 +158,10 @@ def _start_points(problem: Problem, rng: np.random.Generator, n_starts: int) -> 
                 X[i, j] = 2 * E0 * beam.I * z["sh"] / w1
             elif n == "b":
                 X[i, j] = beam.length * (0.05 if i == 0 else 10 ** rng.uniform(-2.5, 0))
-            elif n == "tip_mass":
+            elif n in ("tip_mass", "added_mass"):
                 X[i, j] = 0.02 * beam.beam_mass * (1 if i == 0 else 10 ** rng.uniform(-1, 1))
+            elif n == "added_mass_position":
+                X[i, j] = beam.length * (0.8 if i == 0 else rng.uniform(0.3, 1.0))
             elif n == "root_spring":
                 k_ref = 100 * E0 * beam.I / beam.length  # κ = k L/(E I) = 100: a stiff clamp
                 X[i, j] = k_ref * (1 if i == 0 else 10 ** rng.uniform(-1, 1))

@@ -186,6 +186,8 @@ def default_priors(
     eta (SH strength)         LogUniform: SH part of ζ1 = eta w1/(2 E_ref I) in [1e-6, 0.2]
     b                         LogUniform(1e-3 L, 3 L)
     tip_mass                  LogUniform(1e-3, 0.5) × beam mass
+    added_mass                LogUniform(1e-3, 0.5) × beam mass
+    added_mass_position       Uniform(0, L) (m from the clamp)
     root_spring               LogUniform: κ = k L/(E_ref I) in [1, 1e4]
     stiffness_gradient        Uniform(-1, 1)
     drag, friction            LogUniform: equivalent ζ1 at the data's amplitude in [1e-7, 0.05]
@@ -233,8 +235,10 @@ def default_priors(
             out[n] = LogUniform(2 * E_ref * inertia * zlo / w1, 2 * E_ref * inertia * zhi / w1)
         elif n == "b":
             out[n] = LogUniform(1e-3 * L, 3 * L)
-        elif n == "tip_mass":
+        elif n in ("tip_mass", "added_mass"):
             out[n] = LogUniform(1e-3 * beam.beam_mass, 0.5 * beam.beam_mass)
+        elif n == "added_mass_position":
+            out[n] = Uniform(0.0, L)
         elif n == "root_spring":
             out[n] = LogUniform(E_ref * inertia / L, 1e4 * E_ref * inertia / L)
         elif n == "stiffness_gradient":
@@ -252,11 +256,12 @@ def default_priors(
             # it would overstate the mode-1 amplitude (8x on a 0.4 m strip) and shift
             # both ends. The lower end is far below what a record can see: friction's ζ
             # grows as 1/amplitude while the record decays, and "no friction" must stay
-            # within reach.
-            from bayesbeam.physics.nonlinear import amplitude_damping_scales
+            # within reach. Each is present only when its part (``drag``, ``friction``)
+            # is in the model.
+            from bayesbeam.physics.nonlinear import nonlinear_damping_scales
 
             amp = max(_mode1_amplitude(trial, order, n_elements), 1e-9)
-            k = dict(zip(("drag", "friction"), amplitude_damping_scales(
+            k = dict(zip(("drag", "friction"), nonlinear_damping_scales(
                 beam, E_ref, amp, n_elements=n_elements), strict=True))[n]
             out[n] = LogUniform(1e-7 / k, 0.05 / k)
         elif n == "sigma":

@@ -9,7 +9,6 @@ Layer: imports only :mod:`bayesbeam._util` (independent of :mod:`bayesbeam.stats
 from bayesbeam._util import lazy_exports
 
 _EXPORTS = {
-    "amplitude_damping_scales": ".nonlinear",
     "assemble": ".fem",
     "Beam": ".beam",
     "BeamError": ".beam",
@@ -30,6 +29,7 @@ _EXPORTS = {
     "ModelError": ".models",
     "NOISE": ".models",
     "NONLINEAR": ".models",
+    "nonlinear_damping_scales": ".nonlinear",
     "NonlinearError": ".nonlinear",
     "NonlinearForward": ".nonlinear",
     "numba_available": ".propagate",

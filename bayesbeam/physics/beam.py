@@ -28,7 +28,7 @@ import numpy as np
 
 from bayesbeam._util import read_toml
 
-__all__ = ["Beam", "BeamError", "Gradient", "Segment", "QUANTITIES"]
+__all__ = ["Beam", "BeamError", "Gradient", "PointMass", "Segment", "QUANTITIES"]
 
 QUANTITIES = ("displacement", "velocity", "acceleration")
 
@@ -102,6 +102,26 @@ class Gradient:
 
 
 @dataclass(frozen=True)
+class PointMass:
+    """A concentrated mass attached to the span: a sensor, a cable clip, a glue blob.
+
+    Parameters
+    ----------
+    position : float
+        Distance from the clamp in m, ``0 <= position <= L`` (checked by :class:`Beam`).
+    mass : float
+        Mass in kg, >= 0.
+    """
+
+    position: float
+    mass: float
+
+    def __post_init__(self) -> None:
+        _positive("point mass position", self.position, "m", allow_zero=True)
+        _positive("point mass", self.mass, "kg", allow_zero=True)
+
+
+@dataclass(frozen=True)
 class Beam:
     """An Euler–Bernoulli cantilever clamped at x = 0 (SI units throughout).
 
@@ -126,6 +146,10 @@ class Beam:
         Concentrated mass at x = L in kg.
     tip_inertia : float
         Rotary inertia at x = L in kg m^2.
+    masses : tuple of PointMass
+        Known attachments on the span (sensors, cables), each a point mass at a
+        position from the clamp; translational inertia only (rotary inertia of a small
+        attachment is O((size/wavelength)^2) smaller).
     root_spring : float or None
         Rotational clamp stiffness k_theta in N m/rad; None means a rigid clamp.
     sensor_position : float or None
@@ -144,6 +168,7 @@ class Beam:
     gradient: Gradient = field(default_factory=Gradient)
     tip_mass: float = 0.0
     tip_inertia: float = 0.0
+    masses: tuple[PointMass, ...] = ()
     root_spring: float | None = None
     sensor_position: float | None = None
     quantity: str = "displacement"
@@ -185,6 +210,25 @@ class Beam:
                     "segments must be disjoint"
                 )
         object.__setattr__(self, "segments", tuple(segs))
+        pts = []
+        for pm in self.masses:
+            if isinstance(pm, dict):
+                try:
+                    pm = PointMass(**pm)
+                except TypeError as err:
+                    raise BeamError(
+                        f"bad [[beam.masses]] entry {pm!r}: give 'position' (m from the "
+                        f"clamp) and 'mass' (kg) ({err})"
+                    ) from None
+            if not isinstance(pm, PointMass):
+                raise BeamError("masses must be PointMass records (position m, mass kg)")
+            if pm.position > L * (1 + 1e-12):
+                raise BeamError(
+                    f"point mass at {pm.position} m lies beyond the free end (length {L} m); "
+                    "give the distance from the clamp in metres"
+                )
+            pts.append(pm)
+        object.__setattr__(self, "masses", tuple(sorted(pts, key=lambda m: m.position)))
 
     # -- constructors -------------------------------------------------------------
     @classmethod
@@ -222,8 +266,9 @@ class Beam:
         Either ``width``, ``thickness`` and ``mass``, or ``I`` and ``rhoA`` must be
         given. Optional keys: ``E``, ``tip_mass``, ``tip_inertia``, ``root_spring``,
         ``sensor_position``, ``quantity``, ``segments`` (list of tables with
-        ``start``, ``end`` and factors ``E``, ``I``, ``rhoA``) and ``gradient``
-        (table with ``E``, ``I``, ``rhoA``).
+        ``start``, ``end`` and factors ``E``, ``I``, ``rhoA``), ``gradient``
+        (table with ``E``, ``I``, ``rhoA``) and ``masses`` (list of tables with
+        ``position`` in m from the clamp and ``mass`` in kg; ``[[beam.masses]]`` in TOML).
 
         Parameters
         ----------
@@ -294,6 +339,8 @@ class Beam:
         out["quantity"] = self.quantity
         if self.segments:
             out["segments"] = [dataclasses.asdict(s) for s in self.segments]
+        if self.masses:
+            out["masses"] = [dataclasses.asdict(m) for m in self.masses]
         if not self.gradient.is_zero:
             out["gradient"] = dataclasses.asdict(self.gradient)
         return out
@@ -349,5 +396,5 @@ class Beam:
 
     @property
     def beam_mass(self) -> float:
-        """Mass of the beam itself in kg, ∫ rhoA(x) dx (tip mass excluded)."""
+        """Mass of the beam itself in kg, ∫ rhoA(x) dx (tip mass and attachments excluded)."""
         return self.rhoA * self.length * self.mean_factor("rhoA")

@@ -31,7 +31,7 @@ degree is 7 (linear rhoA times two cubics in ``M``).
 from __future__ import annotations
 
 import numbers
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -181,8 +181,9 @@ class FEModel:
         True: the root rotation θ_0 is a dof (root spring, added by the caller
         as ``k_theta * K_root``); False: rigid clamp.
     M : ndarray, shape (n, n)
-        Mass matrix, including the beam's tip mass and rotary inertia (kg,
-        kg m, kg m² for w–w, w–θ, θ–θ entries).
+        Mass matrix, including the beam's tip mass and rotary inertia and its
+        declared point masses (``Beam.masses``) (kg, kg m, kg m² for w–w, w–θ, θ–θ
+        entries).
     M_tip : ndarray, shape (n, n)
         Unit tip-mass matrix φ_i(L) φ_j(L) (per kg of tip mass).
     K : ndarray, shape (n, n)
@@ -386,7 +387,7 @@ def assemble(beam: Beam, n_elements: int = 16, *, root_dof: bool | None = None) 
     K_root = np.zeros((n, n))
     if root_dof:
         K_root[0, 0] = 1.0  # θ_0 is dof 0 and φ_0'(0) = 1
-    return FEModel(
+    fe = FEModel(
         nodes=_readonly(nodes),
         root_dof=root_dof,
         M=_readonly(M),
@@ -400,6 +401,14 @@ def assemble(beam: Beam, n_elements: int = 16, *, root_dof: bool | None = None) 
         _k_nat=_readonly(k_nat),
         _k_nat_grad=_readonly(k_nat_grad),
     )
+    if not beam.masses:
+        return fe
+    # Declared attachments: a point mass m at x adds m N(x)ᵀ N(x) (its kinetic energy
+    # ½ m w_t(x)², exact for the Hermite field at any x, on a node or inside an element).
+    rows = fe.shape(np.array([pm.position for pm in beam.masses]))
+    mass = np.array([pm.mass for pm in beam.masses])
+    M = M + np.einsum("k,ki,kj->ij", mass, rows, rows)
+    return replace(fe, M=_readonly(0.5 * (M + M.T)))
 
 
 def static_tip_shape(

@@ -53,6 +53,8 @@ _LOWER = {
     "a": (0.0, True),
     "b": (0.0, False),
     "tip_mass": (0.0, True),
+    "added_mass": (0.0, True),
+    "added_mass_position": (0.0, True),
     "root_spring": (0.0, False),
     "stiffness_gradient": (-2.0, False),
     "w0": (-np.inf, False),
@@ -397,6 +399,8 @@ class Forward:
             ok &= theta[:, j] >= lo if closed else theta[:, j] > lo
             if name in _UPPER:
                 ok &= theta[:, j] < _UPPER[name]
+            if name == "added_mass_position":  # on the span: [0, L]
+                ok &= theta[:, j] <= self.fe.length
         return ok
 
     def _get(self, theta: np.ndarray, name: str, default: float = 0.0) -> np.ndarray:
@@ -441,6 +445,12 @@ class Forward:
         kr = self._get(theta, "root_spring", self.beam.root_spring or 0.0)
         g = self._get(theta, "stiffness_gradient")
         M = fe.M[None] + mt[:, None, None] * fe.M_tip[None]
+        if "added_mass" in self.model.structural:
+            # A point mass m at x adds m N(x)ᵀ N(x) (as fem.assemble does for Beam.masses).
+            x = np.clip(self._get(theta, "added_mass_position"), 0.0, fe.length)
+            rows = fe.shape(np.nan_to_num(x))
+            M = M + self._get(theta, "added_mass")[:, None, None] * (
+                rows[:, :, None] * rows[:, None, :])
         K = E[:, None, None] * (fe.K[None] + g[:, None, None] * fe.K_grad[None])
         K = K + kr[:, None, None] * fe.K_root[None]
         # Sets whose matrices overflow (e.g. a huge tip mass) would make LAPACK fail for the
@@ -473,7 +483,7 @@ class Forward:
             a, b = self._get(theta, "a"), self._get(theta, "b")
             # One batched S(b_k) per set (the mode shapes differ between sets).
             C += a[:, None, None] * self.sh.projected(b, phi)
-        self._last_K = K
+        self._last_K, self._last_M = K, M
         return omega, C, phi
 
     def _initial_state(
@@ -504,8 +514,7 @@ class Forward:
                             continue  # stays NaN: flagged invalid by simulate()
                 shape = shape / (shape @ fe.tip)[:, None]
                 c0 = w0 * shape
-                mt = self._get(theta, "tip_mass")
-                Mc = c0 @ fe.M + mt[:, None] * (c0 @ fe.M_tip)
+                Mc = np.einsum("bn,bnk->bk", c0, self._last_M)
                 q0 = np.einsum("bmn,bn->bm", pt, Mc)
         elif self.initial == "impulse":
             p0 = self._get(theta, "p0")[:, None]
@@ -519,9 +528,8 @@ class Forward:
                 q0 = np.broadcast_to(self._phi.T @ fe.M @ c0, (B, m)).copy()
                 v0 = np.broadcast_to(self._phi.T @ fe.M @ vv, (B, m)).copy()
             else:
-                mt = self._get(theta, "tip_mass")
-                Mc = (fe.M @ c0)[None] + mt[:, None] * (fe.M_tip @ c0)[None]
-                Mv = (fe.M @ vv)[None] + mt[:, None] * (fe.M_tip @ vv)[None]
+                Mc = self._last_M @ c0
+                Mv = self._last_M @ vv
                 q0 = np.einsum("bmn,bn->bm", pt, Mc)
                 v0 = np.einsum("bmn,bn->bm", pt, Mv)
         else:  # modes:K — amplitudes at the sensor

@@ -15,8 +15,12 @@ c_d           Pa s         Kelvin–Voigt strain-rate damping, moment c_d I w_xx
 a             N s          spatial-hysteresis strength (Banks–Inman)
 b             m            spatial-hysteresis kernel width (Gaussian sd)
 tip_mass      kg           concentrated tip mass added to the beam's own
+added_mass    kg           concentrated mass at added_mass_position
+added_mass_position  m     its distance from the clamp, in [0, L]
 root_spring   N m/rad      rotational clamp stiffness k_theta
 stiffness_gradient  1      EI(x) factor 1 + g (x/L - 1/2)
+drag          kg/m²        quadratic air drag per unit length, force -c_q |w_t| w_t
+friction      N            dry (Coulomb) clamp friction on the first mode
 ============  ===========  ===============================================
 """
 
@@ -31,11 +35,18 @@ LAWS: dict[str, tuple[str, ...]] = {"viscous": ("gamma",), "kv": ("c_d",), "sh":
 #: Structural extensions that change M or K (physics.md §3).
 STRUCTURAL: dict[str, tuple[str, ...]] = {
     "tip_mass": ("tip_mass",),
+    "added_mass": ("added_mass", "added_mass_position"),
     "root_spring": ("root_spring",),
     "stiffness_gradient": ("stiffness_gradient",),
 }
-#: Extensions that act on the nonlinear dynamics (physics.md §3, amplitude-dependent damping).
-NONLINEAR: dict[str, tuple[str, ...]] = {"amplitude_damping": ("drag", "friction")}
+#: Extensions that act on the nonlinear dynamics (physics.md §3, amplitude-dependent
+#: damping): quadratic air drag and dry clamp friction, each a cause of its own.
+NONLINEAR: dict[str, tuple[str, ...]] = {"drag": ("drag",), "friction": ("friction",)}
+#: Former model parts and what replaced them (named in the error message).
+_RENAMED: dict[str, str] = {
+    "amplitude_damping": "was split into 'drag' (quadratic air drag) and 'friction' (dry "
+                         "clamp friction); use either or both, e.g. 'viscous+kv+drag+friction'",
+}
 #: Extensions of the noise / observation model.
 NOISE: dict[str, tuple[str, ...]] = {"ar1_noise": ("rho",), "sensor_offset": ("offset",)}
 
@@ -137,6 +148,9 @@ def parse_model(name: str | Model) -> Model:
     if not isinstance(name, str) or not name.strip():
         raise ModelError(f"model name must be a non-empty string like 'viscous+kv', got {name!r}")
     parts = [p.strip() for p in name.split("+")]
+    renamed = [p for p in parts if p in _RENAMED]
+    if renamed:
+        raise ModelError(f"model part {renamed[0]!r} in {name!r} {_RENAMED[renamed[0]]}")
     unknown = [p for p in parts if p not in _ORDER]
     if unknown:
         raise ModelError(

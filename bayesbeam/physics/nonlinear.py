@@ -1,7 +1,9 @@
 """Amplitude-dependent damping: quadratic air drag and dry clamp friction (physics.md §3).
 
-The ``amplitude_damping`` extension (:data:`bayesbeam.physics.models.NONLINEAR`) adds two
-parameters to a linear model:
+Two extensions of :data:`bayesbeam.physics.models.NONLINEAR`, two causes of the diagnosis
+catalogue, each adding one parameter (of the same name) to a linear model; a model may
+have either or both (``viscous+kv+drag``, ``viscous+kv+friction``,
+``viscous+kv+drag+friction``), and a missing one counts as zero:
 
 ``drag`` (c_q, kg/m²)
     Quadratic air drag, a distributed force per unit length ``-c_q |w_t| w_t`` (N/m).
@@ -11,10 +13,11 @@ parameters to a linear model:
     coefficients of several units (C_D ~ 3–10, Graham 1980, J. Fluid Mech. 97, 331), so
     ``c_q`` of order 0.05–0.3 kg/m² is physical.
 ``friction`` (F_c, N)
-    Dry (Coulomb) friction at the clamp. A rigid clamp has no rotation for a Coulomb
-    moment to act on, and fitting a friction moment on a root spring would tie the
-    parameter to the root-spring extension; so the clamp's friction is represented, for
-    every clamp, by its effect on the fundamental mode: a Coulomb generalised force
+    Dry (Coulomb) friction at the clamp, acting on the first mode only. A rigid clamp
+    has no rotation for a Coulomb moment to act on, and fitting a friction moment on a
+    root spring would tie the parameter to the root-spring extension; so the clamp's
+    friction is represented, for every clamp, by its effect on the fundamental mode: a
+    Coulomb generalised force
     ``-F_c |s_1| sign(q_1')`` on the first undamped modal coordinate ``q_1``
     (Φ M-orthonormal, ``s_1 = φ_1(L)`` its tip deflection per unit ``q_1``). In dof
     space this is the force vector ``F_c |s_1| sign(φ_1ᵀ M c') M φ_1``. It dissipates,
@@ -26,7 +29,8 @@ parameters to a linear model:
 
 Signatures: the drag's energy loss per cycle grows as the cube of the amplitude, so the
 decay rate grows with amplitude; Coulomb friction's grows only linearly, so the
-amplitude falls linearly in time and the decay rate grows as the amplitude falls.
+amplitude falls linearly in time and the decay rate grows as the amplitude falls. The
+two signatures are opposite, so the diagnosis names them as separate causes.
 
 Simulation (slow flow, Krylov–Bogoliubov averaging)
 ----------------------------------------------------
@@ -62,9 +66,9 @@ is the linear one plus
     Σ_k 2 Re(X_k e^{λ_k τ} [λ_k^p (ρ_k - 1) + p λ_k^{p-1} ρ_k'])
 
 with p = 0, 1, 2 for displacement, velocity and acceleration (the exact derivatives of
-``ρ_k e^{λ_k τ}`` except the O(ε²) ρ'' term). With ``drag = friction = 0`` the correction
-is exactly zero and the result is bit-for-bit the linear
-:class:`~bayesbeam.physics.forward.Forward`.
+``ρ_k e^{λ_k τ}`` except the O(ε²) ρ'' term). With ``drag = friction = 0`` (or the
+parameter absent from the model) the correction is exactly zero and the result is
+bit-for-bit the linear :class:`~bayesbeam.physics.forward.Forward`.
 
 Approximations (checked against a direct LSODA integration, rtol 1e-10, of the full
 nonlinear FE system in tests/test_nonlinear.py):
@@ -80,6 +84,8 @@ nonlinear FE system in tests/test_nonlinear.py):
   amplitudes and decay rates) agrees to ~1e-5, i.e. O(ε²);
 * modes above the ``n_modes`` lowest underdamped ones keep their linear decay and do not
   enter the drag of the others; the other modes are lumped into one tone in ``G``;
+* friction acts on the first mode only (the clamp's friction on the higher modes, and a
+  power-law damping in amplitude on every mode, are not modelled);
 * a mode stopped by friction ends at rest at zero, whereas a real Coulomb oscillator
   sticks anywhere within ``|w_tip| ≤ F_c / k_1`` (one quarter of the last decrement);
 * the drag uses the complex mode's velocity amplitude and ignores the O(ζ) variation of
@@ -90,7 +96,7 @@ nonlinear FE system in tests/test_nonlinear.py):
 The decay rate against amplitude of a record is measured in
 :mod:`bayesbeam.trials.modal_id` (:func:`~bayesbeam.trials.modal_id.envelope_decay_vs_amplitude`
 compares these signals with a direct integration in tests/physics/test_nonlinear.py);
-:func:`amplitude_damping_scales` converts drag and friction to first-mode damping ratios
+:func:`nonlinear_damping_scales` converts drag and friction to first-mode damping ratios
 (for priors).
 """
 
@@ -107,7 +113,7 @@ from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 __all__ = [
     "NonlinearError",
     "NonlinearForward",
-    "amplitude_damping_scales",
+    "nonlinear_damping_scales",
     "two_tone_drag",
 ]
 
@@ -232,7 +238,8 @@ class NonlinearForward:
     beam : Beam
         Beam description, including sensor position and measured quantity.
     model : str or Model
-        A model with the ``amplitude_damping`` extension, e.g. ``'viscous+kv+amplitude_damping'``.
+        A model with the ``drag`` or the ``friction`` extension or both, e.g.
+        ``'viscous+kv+drag'`` or ``'viscous+kv+drag+friction'``.
     times : array_like, shape (T,)
         Sample times in s, strictly increasing.
     t0 : float, optional
@@ -261,10 +268,11 @@ class NonlinearForward:
     Attributes
     ----------
     param_names : tuple of str
-        ``model.physical_params`` (E, law parameters, structural parameters, ``drag``,
-        ``friction``) followed by the initial-condition names.
+        ``model.physical_params`` (E, law parameters, structural parameters, then
+        ``drag`` and/or ``friction``, whichever the model has) followed by the
+        initial-condition names.
     linear : Forward
-        The linear part (the model without ``amplitude_damping``).
+        The linear part (the model without ``drag`` and ``friction``).
     """
 
     def __init__(
@@ -282,10 +290,11 @@ class NonlinearForward:
         bandwidth: float | None = None,
     ) -> None:
         self.model = parse_model(model)
-        if "amplitude_damping" not in self.model.nonlinear:
+        if not self.model.nonlinear:
             raise NonlinearError(
                 f"model {self.model.name!r} has no amplitude-dependent damping; use "
-                "bayesbeam.physics.forward.Forward for linear models or add '+amplitude_damping'"
+                "bayesbeam.physics.forward.Forward for linear models or add '+drag' "
+                "and/or '+friction'"
             )
         linear = parse_model("+".join(p for p in self.model.parts if p not in NONLINEAR))
         self.linear = Forward(beam, linear, times, n_elements=n_elements, initial=initial,
@@ -313,8 +322,10 @@ class NonlinearForward:
             n for n in self.linear.param_names if n not in self.linear.model.physical_params
         )
         self._lin_idx = np.array([self.param_names.index(n) for n in self.linear.param_names])
-        self._i_drag = self.param_names.index("drag")
-        self._i_fric = self.param_names.index("friction")
+        # Column of each nonlinear parameter, None when the model lacks it (counts as 0).
+        self._i_drag = self.param_names.index("drag") if "drag" in self.param_names else None
+        self._i_fric = (self.param_names.index("friction") if "friction" in self.param_names
+                        else None)
         self._tau = self.times - self.t0  # (T,) s since the initial condition
         xq, wq = _gauss_points(np.asarray(self.fe.nodes), _DRAG_GAUSS)
         self._Nq = self.fe.shape(xq)  # (nq, n) displacement rows at the drag points
@@ -325,11 +336,19 @@ class NonlinearForward:
     def _columns(self, theta: np.ndarray | dict) -> np.ndarray:
         return parameter_columns(theta, self.param_names, NonlinearError)
 
+    def _forces(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Columns ``drag`` (kg/m²) and ``friction`` (N) of ``theta``, zeros where absent."""
+        zero = np.zeros(theta.shape[0])
+        drag = theta[:, self._i_drag] if self._i_drag is not None else zero
+        fric = theta[:, self._i_fric] if self._i_fric is not None else zero
+        return drag, fric
+
     def check(self, theta: np.ndarray | dict) -> np.ndarray:
         """Return the mask of admissible parameter sets.
 
-        ``drag`` (kg/m²) and ``friction`` (N) must be finite and ≥ 0; the other
-        parameters as in :meth:`bayesbeam.physics.forward.Forward.check`.
+        ``drag`` (kg/m²) and ``friction`` (N), where the model has them, must be finite
+        and ≥ 0; the other parameters as in
+        :meth:`bayesbeam.physics.forward.Forward.check`.
 
         Parameters
         ----------
@@ -342,7 +361,8 @@ class NonlinearForward:
         theta = self._columns(theta)
         ok = self.linear.check(theta[:, self._lin_idx])
         for j in (self._i_drag, self._i_fric):
-            ok &= np.isfinite(theta[:, j]) & (theta[:, j] >= 0)
+            if j is not None:
+                ok &= np.isfinite(theta[:, j]) & (theta[:, j] >= 0)
         return ok
 
     def modes(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
@@ -557,8 +577,7 @@ class NonlinearForward:
     def _correction(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nonlinear correction to the linear signal, (b, T), and its validity (b,)."""
         th_lin = theta[:, self._lin_idx]
-        drag = theta[:, self._i_drag]
-        fric = theta[:, self._i_fric]
+        drag, fric = self._forces(theta)
         with np.errstate(all="ignore"):
             cm = self._complex_modes(th_lin)
             lam = cm["lam"]
@@ -588,7 +607,7 @@ class NonlinearForward:
         ----------
         theta : ndarray, shape (B, P), or dict of name → array
             Parameter sets, columns :attr:`param_names` (SI units: ``drag`` in kg/m²,
-            ``friction`` in N).
+            ``friction`` in N, where the model has them).
 
         Returns
         -------
@@ -605,7 +624,8 @@ class NonlinearForward:
         lin = self.linear.simulate(theta[:, self._lin_idx])
         valid &= lin.valid
         y[valid] = lin.y[valid]
-        nl = valid & ((theta[:, self._i_drag] > 0) | (theta[:, self._i_fric] > 0))
+        drag, fric = self._forces(theta)
+        nl = valid & ((drag > 0) | (fric > 0))
         if np.any(nl):
             dy, ok = self._correction(theta[nl])
             idx = np.flatnonzero(nl)
@@ -633,7 +653,7 @@ class NonlinearForward:
         Returns
         -------
         zeta_drag, zeta_friction : ndarray, shape (B,)
-            NaN for invalid sets.
+            Dimensionless; 0 for a force the model lacks, NaN for invalid sets.
         """
         theta = self._columns(theta)
         amp = float(amplitude)
@@ -647,6 +667,7 @@ class NonlinearForward:
         if not np.any(valid):
             return zd, zf
         th = theta[valid]
+        drag, fric = self._forces(th)
         with np.errstate(all="ignore"):
             cm = self._complex_modes(th[:, self._lin_idx])
             lam = cm["lam"][:, 0]
@@ -654,14 +675,14 @@ class NonlinearForward:
             cabs = amp / (2 * cm["xtip"][:, 0])
             B = cabs[:, None] * np.abs(cm["W"][:, 0])  # velocity amplitude at the drag points
             R2 = 2 * cabs**2 * cm["v2"][:, 0]  # twice the cycle-mean energy
-            P_d = th[:, self._i_drag] * (4 / (3 * np.pi)) * np.sum(self._wq * B**3, axis=1)
-            P_f = th[:, self._i_fric] * cm["s1"] * (2 / np.pi) * 2 * cabs * cm["q1"][:, 0]
+            P_d = drag * (4 / (3 * np.pi)) * np.sum(self._wq * B**3, axis=1)
+            P_f = fric * cm["s1"] * (2 / np.pi) * 2 * cabs * cm["q1"][:, 0]
             zd[valid] = P_d / R2 / np.abs(lam)
             zf[valid] = P_f / R2 / np.abs(lam)
         return zd, zf
 
 
-def amplitude_damping_scales(
+def nonlinear_damping_scales(
     beam: Beam, E: float, amplitude: float, *, n_elements: int = 16
 ) -> tuple[float, float]:
     """First-mode damping ratio per unit drag and per unit friction at a tip amplitude.
@@ -689,7 +710,7 @@ def amplitude_damping_scales(
     k_friction : float
         ζ per unit ``friction``, 1/N (ζ_friction = k_friction · friction).
     """
-    fwd = NonlinearForward(beam, "viscous+amplitude_damping", np.array([0.0, 1.0]),
+    fwd = NonlinearForward(beam, "viscous+drag+friction", np.array([0.0, 1.0]),
                            n_elements=n_elements)
     p = {"E": E, "gamma": 0.0, "drag": 1.0, "friction": 1.0, "w0": 0.0}
     zd, zf = fwd.equivalent_damping(p, amplitude)

@@ -231,15 +231,15 @@ def test_default_priors_contain_typical_truths_and_are_proper(quantity, nominal_
 
 @pytest.mark.parametrize("quantity, sensor", [("displacement", None), ("acceleration", None),
                                               ("acceleration", 0.8)])
-def test_amplitude_damping_priors_span_their_stated_zeta_range_at_the_true_amplitude(quantity,
-                                                                                    sensor):
+def test_drag_friction_priors_span_their_stated_zeta_range_at_the_true_amplitude(quantity,
+                                                                                 sensor):
     # The drag/friction priors are stated as ζ1 in [1e-7, 0.05] at the record's mode-1
     # amplitude. On a release from w0 the mode-1 tip amplitude is w0 up to the static
     # shape's mode-1 participation (> 0.97 on a cantilever), whatever the signal's
     # peak: an acceleration release's first sample is dominated by the higher modes.
     # Tolerance: the measured amplitude (band-pass envelope, extrapolated over the
     # trimmed start) is within 20 %, so the ζ ends within a factor 1.25.
-    from bayesbeam.physics.nonlinear import amplitude_damping_scales
+    from bayesbeam.physics.nonlinear import nonlinear_damping_scales
 
     # sensor: position as a fraction of the span (None: tip); the stated amplitude is the
     # tip's, so a sensor inboard (mode-1 shape ~0.6 of the tip's at 0.8 L) must be scaled.
@@ -258,9 +258,14 @@ def test_amplitude_damping_priors_span_their_stated_zeta_range_at_the_true_ampli
     if sensor is None:  # at the tip, the peak would mislead
         assert np.max(np.abs(tr.values)) / _w1(beam) ** (2 if quantity == "acceleration" else 0) \
             > (1.5 * w0 if quantity == "acceleration" else 0.99 * w0)
-    pri = default_priors(tr, "viscous+kv+amplitude_damping", n_elements=8, initial="release")
-    k_drag, k_fric = amplitude_damping_scales(beam, E_TRUE, w0, n_elements=8)
+    pri = default_priors(tr, "viscous+kv+drag+friction", n_elements=8, initial="release")
+    k_drag, k_fric = nonlinear_damping_scales(beam, E_TRUE, w0, n_elements=8)
     for name, k in (("drag", k_drag), ("friction", k_fric)):
         lo, hi = pri[name].bounds
         assert k * lo == pytest.approx(1e-7, rel=0.25), name
         assert k * hi == pytest.approx(0.05, rel=0.25), name
+    # Each prior is present only when its part is in the model, and the same alone.
+    for name in ("drag", "friction"):
+        alone = default_priors(tr, f"viscous+kv+{name}", n_elements=8, initial="release")
+        other = ({"drag", "friction"} - {name}).pop()
+        assert other not in alone.names and alone[name].bounds == pri[name].bounds

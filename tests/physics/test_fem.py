@@ -8,7 +8,7 @@ import scipy.linalg as sl
 from numpy.polynomial import Polynomial as P
 from scipy.optimize import brentq
 
-from bayesbeam.physics.beam import Beam, Gradient, Segment
+from bayesbeam.physics.beam import Beam, BeamError, Gradient, PointMass, Segment
 from bayesbeam.physics.fem import FEMError, FEModel, assemble, mesh_nodes, static_tip_shape
 
 # The source study's single-ply beam (issue 2 benchmark) with a physical E.
@@ -237,6 +237,94 @@ def test_root_spring_first_frequency(kappa):
     beta_l = (lam * RHOA * L**4 / (E * I_REF)) ** 0.25
     # issue 2: within 1e-6 at 16 elements (measured ≤ 6.3e-8)
     assert beta_l == pytest.approx(first_root_tip_mass(1.0 / kappa), rel=1e-6)
+
+
+def _trig(fun: str, k: int, z: float) -> float:
+    """k-th derivative of cosh, sinh, cos or sin at z, per unit β^k."""
+    if fun == "cosh":
+        return np.cosh(z) if k % 2 == 0 else np.sinh(z)
+    if fun == "sinh":
+        return np.sinh(z) if k % 2 == 0 else np.cosh(z)
+    return {"cos": np.cos, "sin": np.sin}[fun](z + k * np.pi / 2)
+
+
+def point_mass_determinant(beta: float, mu: float, alpha: float) -> float:
+    """Characteristic determinant of a cantilever with a point mass μ ρA L at x = α L.
+
+    Written independently of the FE code: W = A1 (cosh βξ - cos βξ) + B1 (sinh βξ -
+    sin βξ) on [0, α] (clamped at ξ = 0) and W = A2 (cosh βη + cos βη) + B2 (sinh βη +
+    sin βη), η = 1 - ξ, on [α, 1] (free at ξ = 1); W, W', W'' continuous at α and the
+    shear jumps by W'''(α+) - W'''(α-) = μ β⁴ W(α) (integrating EI w'''' = ρA ω² w +
+    m ω² w(a) δ(x - a) across a). Rows of derivative k are divided by β^k and the
+    whole by cosh β (well scaled for β up to 12).
+    """
+    z1, z2 = beta * alpha, beta * (1 - alpha)
+    w1 = [np.cosh(z1) - np.cos(z1), np.sinh(z1) - np.sin(z1)]
+    rows = []
+    for k in range(4):
+        s1 = [_trig("cosh", k, z1) - _trig("cos", k, z1),
+              _trig("sinh", k, z1) - _trig("sin", k, z1)]
+        s2 = [(-1) ** k * (_trig("cosh", k, z2) + _trig("cos", k, z2)),
+              (-1) ** k * (_trig("sinh", k, z2) + _trig("sin", k, z2))]
+        if k < 3:
+            rows.append(s1 + [-v for v in s2])
+        else:
+            rows.append([-a - mu * beta * b for a, b in zip(s1, w1, strict=True)] + s2)
+    return float(np.linalg.det(np.array(rows) / np.cosh(beta)))
+
+
+def point_mass_roots(mu: float, alpha: float, n: int) -> np.ndarray:
+    """Lowest n roots β_n L of :func:`point_mass_determinant` (sign changes, brentq)."""
+    grid = np.linspace(0.3, 12.0, 4000)
+    vals = [point_mass_determinant(b, mu, alpha) for b in grid]
+    out = [brentq(point_mass_determinant, a, b, args=(mu, alpha), xtol=1e-15, rtol=8.9e-16)
+           for a, b, fa, fb in zip(grid[:-1], grid[1:], vals[:-1], vals[1:], strict=True)
+           if np.sign(fa) != np.sign(fb)]
+    return np.array(out[:n])
+
+
+def test_point_mass_determinant_reduces_to_known_cases():
+    # No mass: the uniform cantilever; a mass at the tip: the tip-mass equation
+    # (physics.md §4 and §3).
+    np.testing.assert_allclose(point_mass_roots(0.0, 0.4, 4), BETA_L_REF, rtol=5e-10)
+    assert point_mass_roots(0.1, 1.0, 1)[0] == pytest.approx(TIP_MASS_REF[0.1], rel=5e-9)
+
+
+@pytest.mark.parametrize(("alpha", "low"), [(0.75, 3.8), (0.85, 2.7)])
+def test_point_mass_frequencies_converge(alpha, low):
+    # A mass of 20 % of the beam mass at α L. At α = 0.75 it sits on a node of every
+    # mesh and the Hermite elements keep their h^4 rate (slope in [3.8, 4.2], as for the
+    # uniform beam). At α = 0.85 it lies inside an element: the exact W''' jumps there,
+    # a cubic cannot follow within the element and the rate falls toward h^3 (measured
+    # slopes 3.5, 3.9, 4.0 for modes 1-3; 2.7 leaves 10 % below the h^3 asymptote).
+    # Meshes to 32 elements: at 64 the mode-1 error (1e-10) meets round-off.
+    mu = 0.2
+    exact = point_mass_roots(mu, alpha, 3) ** 2 * omega_scale()
+    meshes = (8, 16, 32)
+    beam = uniform_beam(masses=(PointMass(alpha * L, mu * RHOA * L),))
+    err = np.array([np.abs(accurate_frequencies(assemble(beam, n), E)[:3] - exact) / exact
+                    for n in meshes])
+    slope = -np.polyfit(np.log(meshes), np.log(err), 1)[0]
+    assert np.all((slope > low) & (slope < 4.2)), slope
+    assert np.all(err[-1] < 3e-6), err  # 32 elements: measured at most 2.6e-6
+
+
+def test_point_masses_add_their_mass_and_are_validated():
+    fe0 = assemble(uniform_beam(), 8)
+    fe = assemble(uniform_beam(masses=({"position": 0.1, "mass": 0.003},
+                                       PointMass(L, 0.002))), 8)
+    translation = np.zeros(fe.n_dof)
+    translation[0::2] = 1.0  # w = 1, θ = 0 at every node: a rigid translation
+    assert translation @ (fe.M - fe0.M) @ translation == pytest.approx(0.005, rel=1e-12)
+    # A point mass at the tip is the tip mass.
+    tip = assemble(uniform_beam(tip_mass=0.002, masses=(PointMass(0.1, 0.003),)), 8)
+    np.testing.assert_allclose(fe.M, tip.M, rtol=0, atol=1e-15)
+    with pytest.raises(BeamError, match="beyond the free end"):
+        uniform_beam(masses=(PointMass(1.1 * L, 0.01),))
+    with pytest.raises(BeamError, match="position"):
+        uniform_beam(masses=({"mass": 0.01},))
+    with pytest.raises(BeamError, match="point mass"):
+        PointMass(0.1, -1.0)
 
 
 # --------------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from bayesbeam.physics.forward import Forward
 from bayesbeam.physics.nonlinear import (
     NonlinearError,
     NonlinearForward,
-    amplitude_damping_scales,
+    nonlinear_damping_scales,
     two_tone_drag,
 )
 from bayesbeam.trials.modal_id import envelope_decay_vs_amplitude
@@ -35,7 +35,7 @@ BETA1L = 1.875104069
 L_, W_, T_ = 0.4, 0.0508, 0.002
 MASS = 2700 * L_ * W_ * T_
 P_LIN = {"E": 70e9, "gamma": 0.005, "c_d": 2e5}
-MODEL = "viscous+kv+amplitude_damping"
+MODEL = "viscous+kv+drag+friction"
 # Realistic sizes: drag c_q = ½ ρ_air C_D b with C_D ≈ 6.5 (small-KC oscillating plate);
 # friction 5 mN on the clamp (tip amplitude loses ≈ 0.2 mm per cycle).
 DRAG, FRICTION = 0.2, 0.005
@@ -138,12 +138,18 @@ def direct_integration(beam, p, times, n_elements, drag, friction, t0=0.0):
 
 def test_param_names_follow_the_problem_order():
     t = np.linspace(0, 1, 50)
-    f = NonlinearForward(strip(), "viscous+kv+tip_mass+amplitude_damping", t, n_elements=4)
+    f = NonlinearForward(strip(), "viscous+kv+tip_mass+drag+friction", t, n_elements=4)
     assert f.param_names == ("E", "gamma", "c_d", "tip_mass", "drag", "friction", "w0")
-    f = NonlinearForward(strip(), "sh+amplitude_damping", t, n_elements=4, initial="modes:2")
+    f = NonlinearForward(strip(), "sh+drag+friction", t, n_elements=4, initial="modes:2")
     assert f.param_names == ("E", "a", "b", "drag", "friction", "A1", "B1", "A2", "B2")
-    assert f.beam is f.linear.beam and f.model.name == "sh+amplitude_damping"
-    with pytest.raises(NonlinearError, match="amplitude"):
+    assert f.beam is f.linear.beam and f.model.name == "sh+drag+friction"
+    # Either alone: the other is absent (counts as zero).
+    f = NonlinearForward(strip(), "viscous+kv+drag", t, n_elements=4)
+    assert f.param_names == ("E", "gamma", "c_d", "drag", "w0")
+    f = NonlinearForward(strip(), "friction+viscous", t, n_elements=4)
+    assert f.param_names == ("E", "gamma", "friction", "w0")
+    assert f.linear.model.name == "viscous"
+    with pytest.raises(NonlinearError, match="amplitude.*'\\+drag'.*'\\+friction'"):
         NonlinearForward(strip(), "viscous", t)
     with pytest.raises(ValueError, match="shape"):
         f.simulate(np.ones((2, 3)))
@@ -178,6 +184,29 @@ def test_a_set_does_not_depend_on_its_batch():
                                    atol=1e-12 * np.abs(batch[i]).max())
 
 
+@pytest.mark.parametrize("quantity", ["displacement", "acceleration"])
+def test_drag_or_friction_alone_equals_both_with_the_other_zero(quantity):
+    # A model with one of the two forces is the model with both and the other at zero,
+    # bit for bit (the missing one counts as zero in the same slow flow).
+    t = np.arange(384) / 256
+    beam = strip(quantity)
+    p = {**P_LIN, "w0": 0.02}
+    both = NonlinearForward(beam, MODEL, t, n_elements=6)
+    y_lin = both.simulate({**p, "drag": 0.0, "friction": 0.0}).y[0]
+    for name, value in (("drag", DRAG), ("friction", FRICTION)):
+        alone = NonlinearForward(beam, f"viscous+kv+{name}", t, n_elements=6)
+        other = ({"drag", "friction"} - {name}).pop()
+        y = alone.simulate({**p, name: value}).y[0]
+        np.testing.assert_array_equal(y, both.simulate({**p, name: value, other: 0.0}).y[0])
+        assert np.abs(y - y_lin).max() > 1e-3 * np.abs(y_lin).max()  # the force acts
+        np.testing.assert_array_equal(alone.simulate({**p, name: 0.0}).y[0], y_lin)
+        zd, zf = alone.equivalent_damping({**p, name: value}, 0.02)
+        z_both = both.equivalent_damping({**p, name: value, other: 0.0}, 0.02)
+        assert (zd[0], zf[0]) == (z_both[0][0], z_both[1][0])
+        assert (zf if name == "drag" else zd)[0] == 0.0
+        assert alone.check({**p, name: -1.0}).tolist() == [False]
+
+
 # ----------------------------------------------------------------------------- linear limit
 
 
@@ -193,7 +222,7 @@ def test_zero_drag_and_friction_equal_the_linear_forward(quantity, model, extra)
     beam = strip(quantity)
     p = {"E": 70e9, "gamma": 0.005, "c_d": 2e5, **extra, "w0": 0.02}
     lin = Forward(beam, model, t, t0=0.0, n_elements=8)
-    nl = NonlinearForward(beam, model + "+amplitude_damping", t, t0=0.0, n_elements=8)
+    nl = NonlinearForward(beam, model + "+drag+friction", t, t0=0.0, n_elements=8)
     p_lin = {k: v for k, v in p.items() if k in lin.param_names}
     y_lin = lin.simulate(p_lin).y[0]
     y0 = nl.simulate({**p_lin, "drag": 0.0, "friction": 0.0}).y[0]
@@ -230,7 +259,7 @@ def test_two_tone_drag_against_brute_force_average():
 def test_equivalent_damping_of_uniform_cantilever_matches_analytic_mode():
     beam = uniform()
     w1, m1, i3 = uniform_mode1_constants(beam)
-    f = NonlinearForward(beam, "viscous+amplitude_damping", np.linspace(0, 1, 10),
+    f = NonlinearForward(beam, "viscous+drag+friction", np.linspace(0, 1, 10),
                          n_elements=16)
     a = 0.01
     zd, zf = f.equivalent_damping({"E": beam.E, "gamma": 0.0, "drag": DRAG,
@@ -245,7 +274,7 @@ def test_equivalent_damping_of_uniform_cantilever_matches_analytic_mode():
     # Physical sizes: a few 1e-3, like the linear damping of a metal strip in air.
     assert 1e-3 < zd_ref < 1e-2 and 1e-3 < zf_ref < 1e-2
     # The same per unit drag / friction (both laws are linear in their coefficient).
-    kd, kf = amplitude_damping_scales(beam, beam.E, a)
+    kd, kf = nonlinear_damping_scales(beam, beam.E, a)
     assert kd * DRAG == pytest.approx(zd_ref, rel=1e-5)
     assert kf * FRICTION == pytest.approx(zf_ref, rel=1e-5)
 
@@ -257,7 +286,7 @@ def test_single_mode_envelope_follows_the_averaged_closed_form(kind):
     beam = uniform()
     w1, m1, i3 = uniform_mode1_constants(beam)
     t = np.arange(4096) / 512  # 8 s, ~85 cycles
-    f = NonlinearForward(beam, "viscous+amplitude_damping", t, n_elements=16,
+    f = NonlinearForward(beam, "viscous+drag+friction", t, n_elements=16,
                          initial="modes:1")
     a0 = 0.02
     drag, fric = (DRAG, 0.0) if kind == "drag" else (0.0, 3 * FRICTION)  # stops at 3.7 s
