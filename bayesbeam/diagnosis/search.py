@@ -553,7 +553,7 @@ def _set_damping(pb: Any, lin: Any, v: dict[str, float], feats: Mapping[str, flo
 
 def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any],
             notes: list[str]) -> Any:
-    """Sample with emcee from a ball around the MAP (shaped by the Laplace covariance)."""
+    """Sample with emcee from a ball around the MAP (:func:`~.fit.walker_scale`)."""
     from bayesbeam.inference import fit as fitmod
     from bayesbeam.inference.results import FitResult, make_provenance
     from bayesbeam.inference.settings import walker_count
@@ -561,20 +561,18 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
 
     rng = np.random.default_rng(seed)
     ndim = pb.ndim
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # -inf stencil points on a bound
-        cov = fitmod.laplace_covariance(pb, u_map)
-    scale = 0.1 * np.sqrt(np.diag(cov)) if cov is not None else np.full(ndim, 1e-3)
-    scale = np.clip(np.where(np.isfinite(scale), scale, 1e-3), 1e-8, 0.5)
     nwalkers = walker_count(settings["nwalkers"], ndim)
-    u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng, scale=scale)
+    u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng,
+                      scale=fitmod.walker_scale(pb, u_map))
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
         chain = run_emcee(pb.log_prob, u0, seed=seed, max_steps=int(settings["max_steps"]),
                           min_steps=int(settings["min_steps"]),
                           target_ess=float(settings["target_ess"]), names=pb.names,
-                          moves=de_moves(), progress=False)
+                          moves=de_moves(), progress=False,
+                          # As in fit(): a discarded first run returns stranded walkers.
+                          preburn=min(fitmod.PREBURN_STEPS, int(settings["max_steps"]) // 4))
     for w in caught:
         if issubclass(w.category, NotConvergedWarning):
             notes.append(f"{pb.model.name}: {w.message}")

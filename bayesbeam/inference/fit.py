@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +48,9 @@ __all__ = [
     "clip_to_prior",
     "find_map",
     "fit",
+    "diagonal_sd",
     "laplace_covariance",
+    "walker_scale",
     "profile_linear",
     "scan_E",
     "thin_result",
@@ -245,6 +247,80 @@ def laplace_covariance(problem: Problem, u: np.ndarray, h: float = 1e-4) -> np.n
         return None
     Li = np.linalg.inv(L)
     return Li.T @ Li
+
+
+def diagonal_sd(log_prob: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
+                rounds: int = 3) -> np.ndarray:
+    """Conditional posterior sd of each coordinate from second differences of log_prob.
+
+    The fallback of :func:`walker_scale` where the full Laplace covariance fails (MAP
+    on a prior bound, -H not positive definite). Per coordinate ``k`` the curvature
+    ``c = -∂²lp/∂u_k²`` comes from a central second difference, or a forward one
+    (``u, u+h, u+2h``) where ``u - h`` leaves the support; the step starts at 1e-6 and is
+    set to half the implied sd ``c^-1/2`` in the next round, so that it matches the
+    posterior's own scale whether that is 1e-6 (E, known to ppm) or 1 (a weak parameter).
+
+    Parameters
+    ----------
+    log_prob : callable
+        Vectorised log density, ``(k, ndim) -> (k,)`` (-inf outside the support).
+    u : ndarray, shape (ndim,)
+        The point (a MAP), inside the support.
+    rounds : int
+        Step adaptations.
+
+    Returns
+    -------
+    ndarray, shape (ndim,)
+        NaN where the curvature is not positive.
+    """
+    u = np.asarray(u, dtype=float)
+    ndim = u.size
+    h = np.full(ndim, 1e-6)
+    sd = np.full(ndim, np.nan)
+    f0 = float(log_prob(u[None])[0])
+    for _ in range(rounds):
+        E = np.diag(h)
+        pts = np.concatenate([u + E, u - E, u + 2 * E])
+        f = log_prob(pts)
+        fp, fm, f2 = f[:ndim], f[ndim:2 * ndim], f[2 * ndim:]
+        central = np.isfinite(fm)
+        curv = np.where(central, -(fp - 2 * f0 + fm), -(f2 - 2 * fp + f0)) / h**2
+        ok = np.isfinite(curv) & (curv > 0)
+        sd = np.where(ok, 1.0 / np.sqrt(np.where(ok, curv, 1.0)), np.nan)
+        h = np.where(ok, np.clip(0.5 * sd, 1e-9, 0.5), h)
+    return sd
+
+
+def walker_scale(problem: Problem, u: np.ndarray, fraction: float = 0.1) -> np.ndarray:
+    """Per-coordinate sd of the initial walker ball around the MAP ``u``.
+
+    ``fraction`` of the Laplace sd (:func:`laplace_covariance`); where the Laplace
+    covariance fails, of the conditional sd from the diagonal curvature
+    (:func:`diagonal_sd`); 1e-3 where neither is defined. A fixed ball of 1e-3 would
+    start the walkers a thousand sd away in a parameter known to ppm (E) and strand them.
+
+    Parameters
+    ----------
+    problem : Problem
+    u : ndarray, shape (ndim,)
+        The MAP in the sampling space.
+    fraction : float
+        Ball size in units of the posterior sd.
+
+    Returns
+    -------
+    ndarray, shape (ndim,)
+        Clipped to [1e-8, 0.5].
+    """
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # -inf stencil points on a bound
+        cov = laplace_covariance(problem, u)
+        sd = np.sqrt(np.diag(cov)) if cov is not None else diagonal_sd(problem.log_prob, u)
+    scale = np.where(np.isfinite(sd), fraction * sd, 1e-3)
+    return np.clip(scale, 1e-8, 0.5)
 
 
 #: Steps of the discarded first run that returns stranded walkers to the ensemble
@@ -500,9 +576,7 @@ def fit(
     )
     ndim = problem.ndim
     nwalkers = walker_count(nwalkers, ndim)
-    cov = laplace_covariance(problem, u_map)
-    scale = 0.1 * np.sqrt(np.diag(cov)) if cov is not None else np.full(ndim, 1e-4)
-    scale = np.clip(scale, 1e-8, 0.5)
+    scale = walker_scale(problem, u_map)
     u0 = init_walkers(problem.log_prob, u_map, nwalkers, rng=rng, scale=scale)
     coords = SamplerCoordinates(problem)
 

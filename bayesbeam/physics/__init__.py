@@ -10,7 +10,9 @@ from bayesbeam._util import lazy_exports
 
 _EXPORTS = {
     "assemble": ".fem",
+    "band_limit": ".sensor",
     "Beam": ".beam",
+    "PointMass": ".beam",
     "BeamError": ".beam",
     "eigenvalues": ".propagate",
     "expm_batched": ".expm",

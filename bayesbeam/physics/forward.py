@@ -34,10 +34,10 @@ from bayesbeam.physics.expm import expm_batched
 from bayesbeam.physics.fem import FEModel, assemble, static_tip_shape
 from bayesbeam.physics.hysteresis import HysteresisOperator
 from bayesbeam.physics.models import Model, parse_model
+from bayesbeam.physics.sensor import band_limit, check_bandwidth
 
 __all__ = [
     "Forward",
-    "band_limit",
     "ForwardError",
     "Response",
     "initial_names",
@@ -164,96 +164,6 @@ def parameter_columns(
     return theta
 
 
-def _check_bandwidth(bandwidth: object) -> float | None:
-    """Return a sensor bandwidth in Hz (None for an unlimited band), or raise."""
-    if bandwidth is None:
-        return None
-    if isinstance(bandwidth, bool) or not isinstance(bandwidth, (int, float, np.number)):
-        raise ForwardError(f"bandwidth must be a number of Hz or None, got {bandwidth!r}")
-    b = float(bandwidth)
-    if np.isnan(b) or b <= 0:
-        raise ForwardError(f"bandwidth must be > 0 Hz (inf or None: unlimited), got {b}")
-    return None if np.isinf(b) else b
-
-
-def band_limit(
-    A: np.ndarray, z0: np.ndarray, h: np.ndarray, omega: np.ndarray, C: np.ndarray,
-    w_band: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Keep only the eigen-solutions of z' = A z with ``|λ| <= w_band`` (ideal low-pass).
-
-    Parameters
-    ----------
-    A : ndarray, shape (B, 2m, 2m)
-        Modal state matrices, state ``z = [Ω q; q']``.
-    z0 : ndarray, shape (B, 2m)
-        Initial states.
-    h : ndarray, shape (B, 2m)
-        Output rows.
-    omega : ndarray, shape (B, m)
-        Undamped modal frequencies (rad/s), ascending in each row.
-    C : ndarray, shape (B, m, m)
-        Modal damping matrices (1/s).
-    w_band : float
-        Cut-off in rad/s.
-
-    Returns
-    -------
-    A, z0, h : ndarray
-        For a batch whose damping does not couple kept and dropped modes (classical
-        damping, to 1e-10), the system reduced to its lowest
-        ``m'`` modes (``m'`` the largest number of modes any set keeps; the coordinates
-        of a set's dropped modes are zero); otherwise the same matrices with ``z0``
-        replaced by its spectral projection ``P z0`` onto the kept eigen-solutions.
-        Rows of sets with non-finite input are returned unchanged (the caller flags them).
-    """
-    B, m = omega.shape
-    diag = np.diagonal(C, axis1=1, axis2=2)
-    # Mode k's two roots: -c/2 ± sqrt(c²/4 - ω²); underdamped roots have |λ| = ω.
-    disc = 0.25 * diag**2 - omega**2
-    over = disc > 0
-    root = np.sqrt(np.where(over, disc, 0.0))
-    fast = np.where(over, 0.5 * diag + root, omega)
-    slow = np.where(over, 0.5 * diag - root, omega)
-    keep = fast <= w_band
-    # Zeroing a mode's coordinates removes exactly its eigen-solutions when the damping
-    # does not couple it to a kept mode. A coupling C_ij tilts the eigenvectors by about
-    # C_ij / |ω_i - ω_j|; below 1e-10 (round-off of Φᵀ D Φ is ~1e-16 of the largest
-    # entry) the sets take the fast route, with the dropped modes cut out of the system.
-    # Otherwise (spatial hysteresis, non-proportional damping), or for an overdamped
-    # mode with one root in the band and one out, the eigenvector route.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gap = np.abs(omega[:, :, None] - omega[:, None, :])
-        ratio = np.abs(C) / gap
-    cross = keep[:, :, None] & ~keep[:, None, :]
-    coupling = np.max(np.where(cross, ratio, 0.0), axis=(1, 2), initial=0.0)
-    classical = (coupling <= 1e-10) & ~((slow <= w_band) & ~keep).any(axis=1)
-    finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(z0).all(axis=1)
-    z0 = z0.copy()
-    if np.all(classical | ~finite):
-        z0[:, :m] = np.where(keep, z0[:, :m], 0.0)
-        z0[:, m:] = np.where(keep, z0[:, m:], 0.0)
-        k = int(np.max(np.count_nonzero(keep & finite[:, None], axis=1), initial=0))
-        k = max(k, 1)  # a set with no mode in band keeps a zero state of one mode
-        sel = np.r_[0:k, m : m + k]
-        return A[:, sel][:, :, sel], z0[:, sel], h[:, sel]
-    for b in np.flatnonzero(finite):
-        if classical[b]:
-            z0[b, :m] = np.where(keep[b], z0[b, :m], 0.0)
-            z0[b, m:] = np.where(keep[b], z0[b, m:], 0.0)
-            continue
-        # P z0 = Σ_k v_k (w_kᴴ z0) / (w_kᴴ v_k) over the kept eigenvalues, with left
-        # eigenvectors w_k: each term is as well conditioned as its own eigenvalue, where
-        # solving with the whole eigenvector matrix would carry the condition number of
-        # the stiff (heavily damped) modes into the kept ones.
-        lam, Wl, Vr = sla.eig(A[b], left=True, right=True)
-        inband = np.abs(lam) <= w_band
-        Wk, Vk = Wl[:, inband], Vr[:, inband]
-        coef = (Wk.conj().T @ z0[b]) / np.einsum("ik,ik->k", Wk.conj(), Vk)
-        z0[b] = (Vk @ coef).real
-    return A, z0, h
-
-
 def _eigh_batched(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Batched ``eigh`` that loses only the sets LAPACK fails on (finite but absurd scales).
 
@@ -334,7 +244,7 @@ class Forward:
         if not np.isfinite(t0) or t0 > t[0]:
             raise ForwardError(f"t0 ({t0} s) must be finite and not after the first sample")
         self.t0 = t0
-        self.bandwidth = _check_bandwidth(bandwidth)
+        self.bandwidth = check_bandwidth(bandwidth, ForwardError)
         self._lead = float(t[0] - t0)
         self._t = t - t[0]
         self._dt = float(np.mean(steps))

@@ -325,3 +325,22 @@ def test_scan_E_fine_pass_is_centred_on_the_coarse_result():
     E = scan_E(pb, X)[0, pb.names.index("E")]
     # Fine grid step 0.03 % of E: the scan lands within a step or two of the truth.
     assert E == pytest.approx(E_TRUE, rel=1e-3)
+
+
+def test_diagonal_sd_matches_a_gaussian_inside_and_on_a_bound():
+    # Independent Gaussian coordinates with sd spanning six decades (E is known to ppm,
+    # a weak damping coefficient to order 1), the second truncated at its mode (a MAP on
+    # a prior bound, where the central difference would step outside the support).
+    from bayesbeam.inference.fit import diagonal_sd
+
+    sd = np.array([2e-6, 0.3, 1.5])
+    mode = np.array([24.9, 0.0, -1.0])
+
+    def log_prob(U):
+        U = np.atleast_2d(U)
+        out = -0.5 * np.sum(((U - mode) / sd) ** 2, axis=1)
+        return np.where(U[:, 1] < 0.0, -np.inf, out)
+
+    # Second differences of a quadratic are exact up to round-off, which the adapted
+    # steps (half an sd) keep at ~eps |u| / sd ~ 1e-9 relative for the ppm coordinate.
+    np.testing.assert_allclose(diagonal_sd(log_prob, mode), sd, rtol=1e-6)

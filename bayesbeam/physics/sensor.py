@@ -1,0 +1,256 @@
+"""The sensor's band: what an anti-alias-filtered sensor records of a free vibration.
+
+A sensor records the beam through an anti-alias filter; with a ``bandwidth`` the forward
+model's output is what an ideal linear-phase low-pass with that cut-off would record once
+it has settled: every free-vibration eigen-solution ``e^{λt}`` of ``z' = A z`` with
+``|λ| <= 2π·bandwidth`` passes unchanged and every other one is removed (see
+:mod:`bayesbeam.physics.forward`, and data/README.md "Sensor band" for the trial key).
+
+:func:`band_limit` applies it to a batch of modal state-space systems by three routes,
+each exact for what it covers:
+
+* classically damped sets: the eigen-solutions of mode k are those of its own 2x2 block,
+  so the modes above the band are cut out of the system;
+* coupled sets (spatial hysteresis, non-proportional damping): the system restricted to
+  the invariant subspace of the kept modes, from two block Riccati equations solved by
+  fixed-point iteration (:func:`_invariant_reduction`); a small real system of the kept
+  modes' dimension, no eigendecomposition;
+* where that iteration does not converge (a mode too close to the band edge) or the
+  band splits a mode's two roots: the spectral projection from left and right
+  eigenvectors (:func:`_eigen_projection`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+__all__ = ["band_limit", "check_bandwidth"]
+
+
+def check_bandwidth(bandwidth: object, error: type[Exception] = ValueError) -> float | None:
+    """Return a sensor bandwidth in Hz (None for an unlimited band), or raise ``error``.
+
+    Parameters
+    ----------
+    bandwidth : object
+        None, inf (unlimited) or a positive number of Hz.
+    error : type of Exception
+        Raised with a message saying what is wrong.
+
+    Returns
+    -------
+    float or None
+    """
+    if bandwidth is None:
+        return None
+    if isinstance(bandwidth, bool) or not isinstance(bandwidth, (int, float, np.number)):
+        raise error(f"bandwidth must be a number of Hz or None, got {bandwidth!r}")
+    b = float(bandwidth)
+    if np.isnan(b) or b <= 0:
+        raise error(f"bandwidth must be > 0 Hz (inf or None: unlimited), got {b}")
+    return None if np.isinf(b) else b
+
+
+def band_limit(
+    A: np.ndarray, z0: np.ndarray, h: np.ndarray, omega: np.ndarray, C: np.ndarray,
+    w_band: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keep only the eigen-solutions of z' = A z with ``|λ| <= w_band`` (ideal low-pass).
+
+    Parameters
+    ----------
+    A : ndarray, shape (B, 2m, 2m)
+        Modal state matrices, state ``z = [Ω q; q']``.
+    z0 : ndarray, shape (B, 2m)
+        Initial states.
+    h : ndarray, shape (B, 2m)
+        Output rows.
+    omega : ndarray, shape (B, m)
+        Undamped modal frequencies (rad/s), ascending in each row.
+    C : ndarray, shape (B, m, m)
+        Modal damping matrices (1/s).
+    w_band : float
+        Cut-off in rad/s.
+
+    Returns
+    -------
+    A, z0, h : ndarray
+        For a batch whose damping does not couple kept and dropped modes (classical
+        damping, to 1e-10), the system reduced to its lowest
+        ``m'`` modes (``m'`` the largest number of modes any set keeps; the coordinates
+        of a set's dropped modes are zero); otherwise the same matrices with ``z0``
+        replaced by its spectral projection ``P z0`` onto the kept eigen-solutions.
+        Rows of sets with non-finite input are returned unchanged (the caller flags them).
+    """
+    B, m = omega.shape
+    diag = np.diagonal(C, axis1=1, axis2=2)
+    # Mode k's two roots: -c/2 ± sqrt(c²/4 - ω²); underdamped roots have |λ| = ω.
+    disc = 0.25 * diag**2 - omega**2
+    over = disc > 0
+    root = np.sqrt(np.where(over, disc, 0.0))
+    fast = np.where(over, 0.5 * diag + root, omega)
+    slow = np.where(over, 0.5 * diag - root, omega)
+    keep = fast <= w_band
+    # Zeroing a mode's coordinates removes exactly its eigen-solutions when the damping
+    # does not couple it to a kept mode. A coupling C_ij tilts the eigenvectors by about
+    # C_ij / |ω_i - ω_j|; below 1e-10 (round-off of Φᵀ D Φ is ~1e-16 of the largest
+    # entry) the sets take the fast route, with the dropped modes cut out of the system.
+    # Otherwise (spatial hysteresis, non-proportional damping), or for an overdamped
+    # mode with one root in the band and one out, the eigenvector route.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gap = np.abs(omega[:, :, None] - omega[:, None, :])
+        ratio = np.abs(C) / gap
+    cross = keep[:, :, None] & ~keep[:, None, :]
+    coupling = np.max(np.where(cross, ratio, 0.0), axis=(1, 2), initial=0.0)
+    classical = (coupling <= 1e-10) & ~((slow <= w_band) & ~keep).any(axis=1)
+    finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(z0).all(axis=1)
+    z0 = z0.copy()
+    if np.all(classical | ~finite):
+        z0[:, :m] = np.where(keep, z0[:, :m], 0.0)
+        z0[:, m:] = np.where(keep, z0[:, m:], 0.0)
+        k = int(np.max(np.count_nonzero(keep & finite[:, None], axis=1), initial=0))
+        k = max(k, 1)  # a set with no mode in band keeps a zero state of one mode
+        sel = np.r_[0:k, m : m + k]
+        return A[:, sel][:, :, sel], z0[:, sel], h[:, sel]
+    # Coupled sets: the kept modes' invariant subspace (:func:`_invariant_reduction`),
+    # where the iteration converges and the band splits no mode; else the eigenvectors.
+    coupled = finite & ~classical
+    straddle = ((slow <= w_band) & ~keep).any(axis=1)
+    red: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+    for pattern in np.unique(keep[coupled & ~straddle], axis=0):
+        if not pattern.any():
+            continue
+        rows = np.flatnonzero(coupled & ~straddle & (keep == pattern).all(axis=1))
+        kept = np.flatnonzero(pattern)
+        K = np.r_[kept, m + kept]
+        M, a, g, P, ok = _invariant_reduction(A[rows], z0[rows], h[rows], K, w_band)
+        for j in np.flatnonzero(ok):
+            red[int(rows[j])] = (M[j], a[j], g[j], P[j])
+    reducible = classical | ~finite
+    reducible[list(red)] = True
+    if np.all(reducible):
+        k = max([int(np.count_nonzero(keep[b])) for b in np.flatnonzero(finite)] + [1])
+        d = 2 * k
+        Ar, zr, hr = np.zeros((B, d, d)), np.zeros((B, d)), np.zeros((B, d))
+        cls = classical | ~finite
+        sel = np.r_[0:k, m : m + k]
+        zc = np.where(np.concatenate([keep, keep], axis=1), z0, 0.0)
+        Ar[cls], zr[cls], hr[cls] = A[cls][:, sel][:, :, sel], zc[cls][:, sel], h[cls][:, sel]
+        for b, (M, a, g, _) in red.items():
+            n = M.shape[0]
+            # Zero padding: a block with A = 0, z0 = 0, h = 0 contributes nothing.
+            Ar[b, :n, :n], zr[b, :n], hr[b, :n] = M, a, g
+        return Ar, zr, hr
+    for b in np.flatnonzero(finite):
+        if classical[b]:
+            z0[b, :m] = np.where(keep[b], z0[b, :m], 0.0)
+            z0[b, m:] = np.where(keep[b], z0[b, m:], 0.0)
+        elif b in red:
+            z0[b] = red[b][3]
+        else:
+            z0[b] = _eigen_projection(A[b], z0[b], w_band)
+    return A, z0, h
+
+
+def _eigen_projection(A: np.ndarray, z0: np.ndarray, w_band: float) -> np.ndarray:
+    """Return ``P z0`` for one state matrix from its left and right eigenvectors.
+
+    ``P z0 = Σ_k v_k (w_kᴴ z0) / (w_kᴴ v_k)`` over the eigenvalues with ``|λ| <= w_band``:
+    each term is as well conditioned as its own eigenvalue, where solving with the whole
+    eigenvector matrix would carry the condition number of the stiff (heavily damped)
+    modes into the kept ones. About 1 ms for 32 modes: the fallback route.
+    """
+    lam, Wl, Vr = sla.eig(A, left=True, right=True)
+    inband = np.abs(lam) <= w_band
+    Wk, Vk = Wl[:, inband], Vr[:, inband]
+    coef = (Wk.conj().T @ z0) / np.einsum("ik,ik->k", Wk.conj(), Vk)
+    return (Vk @ coef).real
+
+
+#: Iterations and relative tolerance of the invariant-subspace iteration.
+MAX_ITERATIONS, TOLERANCE = 200, 1e-12
+
+
+def _invariant_reduction(
+    A: np.ndarray, z0: np.ndarray, h: np.ndarray, K: np.ndarray, w_band: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Exact reduction of z' = A z to the invariant subspace of the kept modes.
+
+    With the state split into kept (``K``) and dropped coordinates, the subspace of the
+    kept eigen-solutions is spanned by ``[I; X]`` and that of the dropped ones by
+    ``[Y; I]``, where (block Riccati equations; Stewart & Sun 1990, Matrix Perturbation
+    Theory, §V.2)::
+
+        X = A22⁻¹ (X A11 + X A12 X - A21),    Y = (A11 Y + A12 - Y A21 Y) A22⁻¹.
+
+    Both fixed-point iterations contract by about |λ|max(kept) / |λ|min(dropped) per
+    step (modes well inside and well outside the band: 0.3-0.6, 30-50 steps to 1e-12).
+    Writing ``z0 = [I; X] a + [Y; I] b`` gives ``a = (I - Y X)⁻¹ (z0_K - Y z0_D)``, and the
+    kept part of the response is exactly that of the small real system
+    ``a' = (A11 + A12 X) a``, ``y = (h_K + h_D X) a``: the projection of
+    :func:`_eigen_projection` without an eigendecomposition of A, and a propagation of
+    ``len(K)`` states instead of all.
+
+    Parameters
+    ----------
+    A : ndarray, shape (B, s, s)
+    z0, h : ndarray, shape (B, s)
+    K : ndarray of int, shape (2k,)
+        Kept state coordinates (``[Ω q; q']`` of the kept modes).
+    w_band : float
+        Cut-off in rad/s.
+
+    Returns
+    -------
+    M : ndarray, shape (B, 2k, 2k)
+    a, g : ndarray, shape (B, 2k)
+        Reduced initial state and output row.
+    Pz0 : ndarray, shape (B, s)
+        The projected full state (for the full-size route).
+    ok : ndarray of bool, shape (B,)
+        Converged, finite, and every eigenvalue of M inside the band (else the set
+        takes :func:`_eigen_projection`).
+    """
+    s = A.shape[1]
+    D = np.setdiff1d(np.arange(s), K)
+    A11, A12 = A[:, K][:, :, K], A[:, K][:, :, D]
+    A21, A22 = A[:, D][:, :, K], A[:, D][:, :, D]
+    B, n = A.shape[0], K.size
+    ok = np.ones(B, dtype=bool)
+    with np.errstate(all="ignore"):
+        try:
+            Ai = np.linalg.inv(A22)
+        except np.linalg.LinAlgError:
+            return (np.zeros((B, n, n)), np.zeros((B, n)), np.zeros((B, n)), z0,
+                    np.zeros(B, dtype=bool))
+        X = -Ai @ A21
+        Y = A12 @ Ai
+        done = np.zeros(B, dtype=bool)
+        for _ in range(MAX_ITERATIONS):
+            Xn = Ai @ (X @ A11 + X @ A12 @ X - A21)
+            Yn = (A11 @ Y + A12 - Y @ A21 @ Y) @ Ai
+            dx = np.linalg.norm(Xn - X, axis=(1, 2)) / np.maximum(
+                np.linalg.norm(Xn, axis=(1, 2)), 1e-300)
+            dy = np.linalg.norm(Yn - Y, axis=(1, 2)) / np.maximum(
+                np.linalg.norm(Yn, axis=(1, 2)), 1e-300)
+            X, Y = Xn, Yn
+            done = (dx <= TOLERANCE) & (dy <= TOLERANCE)
+            if np.all(done | ~np.isfinite(dx) | ~np.isfinite(dy)):
+                break
+        ok &= done
+        M = A11 + A12 @ X
+        rhs = z0[:, K] - np.einsum("bij,bj->bi", Y, z0[:, D])
+        a = np.linalg.solve(np.eye(n) - Y @ X, rhs[..., None])[..., 0]
+        g = h[:, K] + np.einsum("bj,bjk->bk", h[:, D], X)
+        Pz0 = np.zeros_like(z0)
+        Pz0[:, K] = a
+        Pz0[:, D] = np.einsum("bij,bj->bi", X, a)
+        ok &= np.isfinite(M).all(axis=(1, 2)) & np.isfinite(a).all(axis=1)
+        ok &= np.isfinite(g).all(axis=1)
+        lam = np.linalg.eigvals(np.where(ok[:, None, None], M, 0.0))
+    ok &= (np.abs(lam) <= w_band).all(axis=1)
+    return M, a, g, Pz0, ok
+
+
+
