@@ -130,9 +130,9 @@ def _build_parser() -> argparse.ArgumentParser:
 
     # Commands of the later stages live in their own modules (each imports its heavy
     # dependencies only when run).
-    from bayesbeam.cli import compare, demo, diagnose, fit, report
+    from bayesbeam.cli import compare, demo, diagnose, fit, inspect, report
 
-    for mod in (fit, compare, diagnose, report, demo):
+    for mod in (fit, compare, diagnose, report, demo, inspect):
         mod.register(sub)
     return p
 

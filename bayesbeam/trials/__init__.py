@@ -10,6 +10,11 @@ Layer: above :mod:`bayesbeam.physics` and :mod:`bayesbeam.stats`.
 from bayesbeam._util import lazy_exports
 
 _EXPORTS = {
+    "amplitude_curves": ".amplitude",
+    "AmplitudeBin": ".amplitude_bins",
+    "AmplitudeCurves": ".amplitude",
+    "ResidualLine": ".residual_lines",
+    "tip_factor": ".amplitude_bins",
     "band_modal_estimate": ".modal_id",
     "damped_sinusoids": ".modal_id",
     "decay_rate_vs_amplitude": ".modal_id",

@@ -1,0 +1,256 @@
+"""Figures of the model-free amplitude curves (:mod:`bayesbeam.trials.amplitude`).
+
+Built on :class:`matplotlib.figure.Figure` directly (object API, Agg canvas), as
+:mod:`bayesbeam.report.plots`. The x axis is the mode-1 displacement amplitude in m
+(``AmplitudeCurves.amplitude_m``), logarithmic; window estimates are drawn with error
+bars of ±1 standard error, the amplitude-bin means on top.
+
+* :func:`plot_f1` (a), :func:`plot_zeta1` (b), :func:`plot_mode2` (c: f2/f1 and ζ2,
+  only where mode 2 is resolved), :func:`plot_residual_spectrogram` (d);
+* :func:`write_amplitude_figures` writes all four as PNG files;
+* ``extra`` curves ``{label: (amplitude_m, values)}`` are drawn over the data by
+  :func:`overlay_curves`: the hook for a fitted model's predicted curves.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "FIGURES",
+    "overlay_curves",
+    "plot_f1",
+    "plot_mode2",
+    "plot_residual_spectrogram",
+    "plot_zeta1",
+    "write_amplitude_figures",
+]
+
+#: File names written by :func:`write_amplitude_figures`, by panel key.
+FIGURES = {
+    "f1": "f1_vs_amplitude.png",
+    "zeta1": "zeta1_vs_amplitude.png",
+    "mode2": "mode2_vs_amplitude.png",
+    "spectrogram": "residual_spectrogram.png",
+}
+
+Extra = Mapping[str, tuple[Any, Any]]
+
+
+def _figure(nrows: int = 1) -> Any:
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(7.5, 3.6 * nrows), layout="constrained")
+
+
+def overlay_curves(ax: Any, extra: Extra | None) -> None:
+    """Draw extra curves (e.g. a fitted model's predictions) over an amplitude plot.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        The axes (x: displacement amplitude in m).
+    extra : mapping of str to (array_like, array_like), optional
+        ``{label: (amplitude_m, values)}``; amplitudes in m, values in the units of
+        the axes (Hz, dimensionless). Drawn as lines, sorted by amplitude.
+    """
+    for label, (a, v) in (extra or {}).items():
+        a, v = np.asarray(a, dtype=float), np.asarray(v, dtype=float)
+        order = np.argsort(a)
+        ax.plot(a[order], v[order], "-", lw=1.5, label=label)
+
+
+def _panel(ax: Any, curves: Any, x: np.ndarray, y: np.ndarray, se: np.ndarray,
+           bx: np.ndarray, by: np.ndarray, bse: np.ndarray, ylabel: str,
+           extra: Extra | None) -> None:
+    ok = np.isfinite(x) & np.isfinite(y) & (x > 0)
+    ax.errorbar(x[ok], y[ok], yerr=np.where(np.isfinite(se[ok]), se[ok], 0.0), fmt="o",
+                ms=3, lw=0.8, color="0.55", label="windows (±1 SE)")
+    okb = np.isfinite(bx) & np.isfinite(by) & (bx > 0)
+    if okb.any():
+        ax.errorbar(bx[okb], by[okb], yerr=np.where(np.isfinite(bse[okb]), bse[okb], 0.0),
+                    fmt="s", ms=5, color="C3", capsize=3, label="amplitude bins")
+    overlay_curves(ax, extra)
+    ax.set_xscale("log")
+    tip = "" if curves.tip_factor == 1.0 else " (tip)"
+    ax.set_xlabel(f"mode-1 displacement amplitude{tip} [m]")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+
+
+def _bin_arrays(curves: Any, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    b = curves.bins
+    return (np.array([x.amplitude_m for x in b]), np.array([getattr(x, name) for x in b]),
+            np.array([getattr(x, name + "_se") for x in b]))
+
+
+def plot_f1(curves: Any, *, extra: Extra | None = None, title: str = "") -> Any:
+    """Figure (a): mode-1 frequency against mode-1 amplitude.
+
+    Parameters
+    ----------
+    curves : bayesbeam.trials.amplitude.AmplitudeCurves
+        The window estimates.
+    extra : mapping, optional
+        Curves ``{label: (amplitude_m, f1_hz)}`` drawn over the data.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig = _figure()
+    ax = fig.add_subplot()
+    bx, by, bse = _bin_arrays(curves, "f1")
+    _panel(ax, curves, curves.amplitude_m, curves.frequency[:, 0], curves.frequency_se[:, 0],
+           bx, by, bse, "f1 [Hz]", extra)
+    ax.set_title(title or "mode-1 frequency against amplitude")
+    return fig
+
+
+def plot_zeta1(curves: Any, *, extra: Extra | None = None, title: str = "") -> Any:
+    """Figure (b): mode-1 damping ratio against mode-1 amplitude.
+
+    Parameters
+    ----------
+    curves : bayesbeam.trials.amplitude.AmplitudeCurves
+        The window estimates.
+    extra : mapping, optional
+        Curves ``{label: (amplitude_m, zeta1)}`` drawn over the data.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig = _figure()
+    ax = fig.add_subplot()
+    bx, by, bse = _bin_arrays(curves, "zeta1")
+    _panel(ax, curves, curves.amplitude_m, curves.zeta[:, 0], curves.zeta_se[:, 0],
+           bx, by, bse, "ζ1", extra)
+    ax.set_title(title or "mode-1 damping ratio against amplitude")
+    return fig
+
+
+def plot_mode2(curves: Any, *, extra: Mapping[str, Extra] | None = None,
+               title: str = "") -> Any | None:
+    """Figure (c): f2/f1 and ζ2 against mode-1 amplitude, where mode 2 is resolved.
+
+    Parameters
+    ----------
+    curves : bayesbeam.trials.amplitude.AmplitudeCurves
+        The window estimates.
+    extra : mapping, optional
+        ``{"ratio": {label: (amplitude_m, f2/f1)}, "zeta2": {label: (amplitude_m, ζ2)}}``.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure or None
+        None when no window resolves mode 2.
+    """
+    if curves.frequency.shape[1] < 2 or not np.isfinite(curves.frequency[:, 1]).any():
+        return None
+    extra = extra or {}
+    fig = _figure(2)
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    ratio, ratio_se = curves.ratio
+    bx, by, bse = _bin_arrays(curves, "ratio")
+    _panel(ax1, curves, curves.amplitude_m, ratio, ratio_se, bx, by, bse, "f2 / f1",
+           extra.get("ratio"))
+    bx, by, bse = _bin_arrays(curves, "zeta2")
+    _panel(ax2, curves, curves.amplitude_m, curves.zeta[:, 1], curves.zeta_se[:, 1],
+           bx, by, bse, "ζ2", extra.get("zeta2"))
+    ax1.set_title(title or "mode 2 against mode-1 amplitude")
+    return fig
+
+
+def plot_residual_spectrogram(curves: Any, *, title: str = "") -> Any:
+    """Figure (d): spectrogram of the residual with the residual lines marked.
+
+    Parameters
+    ----------
+    curves : bayesbeam.trials.amplitude.AmplitudeCurves
+        The window estimates (``spectrogram``, ``lines``).
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig = _figure()
+    ax = fig.add_subplot()
+    f, t, amp = curves.spectrogram
+    if amp.size:
+        pos = amp[amp > 0]
+        floor = float(np.percentile(pos, 5)) if pos.size else 1e-300
+        mesh = ax.pcolormesh(t, f, 20 * np.log10(np.maximum(amp, floor)), shading="auto",
+                             cmap="viridis")
+        fig.colorbar(mesh, ax=ax, label="residual amplitude [dB re 1 SI unit]")
+        ax.set_ylim(0, float(f[-1]))
+    for line in curves.lines:
+        ax.axhline(line.frequency, color="w", lw=0.8, ls="--")
+        ax.annotate(line.label, (1.0, line.frequency), xycoords=("axes fraction", "data"),
+                    xytext=(3, 0), textcoords="offset points", fontsize=7, va="center")
+    ax.set_yscale("symlog", linthresh=max(1.0, 2 * float(np.nanmax(curves.frequency[:, 0]))))
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("frequency [Hz]")
+    ax.set_title(title or "residual of the windowed modal fit")
+    return fig
+
+
+def write_amplitude_figures(curves: Any, outdir: str | Path, *,
+                            extra: Mapping[str, Any] | None = None, title: str = "",
+                            dpi: int = 110) -> list[Path]:
+    """Write figures (a)-(d) as PNG files into ``outdir`` (names in :data:`FIGURES`).
+
+    Parameters
+    ----------
+    curves : bayesbeam.trials.amplitude.AmplitudeCurves
+        The window estimates.
+    outdir : str or Path
+        Folder (created if needed).
+    extra : mapping, optional
+        Model curves by panel: ``{"f1": {...}, "zeta1": {...}, "mode2": {"ratio": {...},
+        "zeta2": {...}}}``, each ``{label: (amplitude_m, values)}``.
+    title : str
+        Prefix of the figure titles (e.g. the trial name).
+    dpi : int
+        Resolution.
+
+    Returns
+    -------
+    list of Path
+        The files written (no mode-2 figure when mode 2 is never resolved).
+    """
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    extra = extra or {}
+    pre = f"{title}: " if title else ""
+    figs = {
+        "f1": plot_f1(curves, extra=extra.get("f1"),
+                      title=pre + "mode-1 frequency against amplitude"),
+        "zeta1": plot_zeta1(curves, extra=extra.get("zeta1"),
+                            title=pre + "mode-1 damping ratio against amplitude"),
+        "mode2": plot_mode2(curves, extra=extra.get("mode2"),
+                            title=pre + "mode 2 against mode-1 amplitude"),
+        "spectrogram": plot_residual_spectrogram(
+            curves, title=pre + "residual of the windowed modal fit"),
+    }
+    paths = []
+    for key, fig in figs.items():
+        if fig is None:
+            continue
+        path = out / FIGURES[key]
+        fig.savefig(path, dpi=dpi)
+        paths.append(path)
+    return paths
