@@ -137,18 +137,26 @@ def summarise(label: str, d, seconds: float, length: float) -> str:
                                             "root_spring", "stiffness_gradient",
                                             "rho", "offset", "drag", "friction"):
                 lines.append(f"    - {k}: {b[0]:.4g} ± {b[1]:.2g} → {a[0]:.4g} ± {a[1]:.2g}")
-        if "added_mass_position" in r.parameter_moves:  # the units a bench engineer uses
-            x, x_sd = r.parameter_moves["added_mass_position"]["after"]
-            m, m_sd = r.parameter_moves["added_mass"]["after"]
-            lines.append(f"    - added mass {1e3 * m:.2f} ± {1e3 * m_sd:.2f} g at "
-                         f"{1e2 * (length - x):.1f} ± {1e2 * x_sd:.1f} cm from the tip")
+    for name, res in d.fits.items():  # mass candidates, named or not: where and how heavy
+        sm = res.summary()
+        if "added_mass_position" in sm:
+            x, m = sm["added_mass_position"], sm["added_mass"]
+            lines.append(f"- sampled `{name}`: {1e3 * m['mean']:.2f} ± {1e3 * m['sd']:.2f} g "
+                         f"at {1e2 * (length - x['mean']):.2f} ± {1e2 * x['sd']:.2f} cm from the "
+                         f"tip, E {sm['E']['mean'] / 1e9:.2f} ± {sm['E']['sd'] / 1e9:.2f} GPa")
+        elif "tip_mass" in sm:
+            m = sm["tip_mass"]
+            lines.append(f"- sampled `{name}`: tip mass {1e3 * m['mean']:.2f} ± "
+                         f"{1e3 * m['sd']:.2f} g, E {sm['E']['mean'] / 1e9:.2f} GPa")
     if d.notes:
         lines += ["", f"{len(d.notes)} reliability note(s), e.g.: {d.notes[0][:160]}"]
     return "\n".join(lines) + "\n"
 
 
 def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
-         progress: bool = True, records: list[str] | None = None) -> dict[str, Any]:
+         progress: bool = True, records: list[str] | None = None,
+         candidates: list[str] | None = None,
+         max_rounds: int | None = None) -> dict[str, Any]:
     """Run the study; print and write its findings.
 
     Parameters
@@ -163,6 +171,11 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
         Progress lines on stderr.
     records : list of str, optional
         Subset of the record labels (default: all of the chosen setting's).
+    candidates : list of str, optional
+        Catalogue subset for the diagnosis (default: the setting's, all of the catalogue
+        for the full setting).
+    max_rounds : int, optional
+        Rounds of the diagnosis (default: the setting's).
 
     Returns
     -------
@@ -183,6 +196,10 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
             log(f"{label}: {trial.times.size} samples, initial modes:{k}")
         t0 = time.perf_counter()
         kw = dict(cfg["diagnose"])
+        if candidates:
+            kw["candidates"] = tuple(candidates)
+        if max_rounds is not None:
+            kw["max_rounds"] = int(max_rounds)
         d = diagnose(trial, "viscous+kv", seed=seed, n_elements=cfg["n_elements"],
                      initial=f"modes:{k}", progress=log, **kw)
         seconds = time.perf_counter() - t0
@@ -202,5 +219,10 @@ if __name__ == "__main__":
     ap.add_argument("--outdir", type=Path, default=None)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--records", nargs="+", default=None, choices=[r[0] for r in RECORDS])
+    ap.add_argument("--candidates", default=None,
+                    help="comma-separated catalogue subset, e.g. tip_mass,added_mass")
+    ap.add_argument("--max-rounds", type=int, default=None)
     a = ap.parse_args()
-    main(small=a.small, outdir=a.outdir, seed=a.seed, records=a.records)
+    main(small=a.small, outdir=a.outdir, seed=a.seed, records=a.records,
+         candidates=a.candidates.split(",") if a.candidates else None,
+         max_rounds=a.max_rounds)
