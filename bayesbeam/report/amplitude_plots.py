@@ -5,7 +5,7 @@ Built on :class:`matplotlib.figure.Figure` directly (object API, Agg canvas), as
 (``AmplitudeCurves.amplitude_m``), logarithmic; window estimates are drawn with error
 bars of ±1 standard error, the amplitude-bin means on top.
 
-* :func:`plot_f1` (a), :func:`plot_zeta1` (b), :func:`plot_mode2` (c: f2/f1 and ζ2,
+* :func:`plot_mode1` (a: f1, b: ζ1), :func:`plot_mode2` (c: f2/f1 and ζ2,
   only where mode 2 is resolved), :func:`plot_residual_spectrogram` (d);
 * :func:`write_amplitude_figures` writes all four as PNG files;
 * ``extra`` curves ``{label: (amplitude_m, values)}`` are drawn over the data by
@@ -23,10 +23,9 @@ import numpy as np
 __all__ = [
     "FIGURES",
     "overlay_curves",
-    "plot_f1",
+    "plot_mode1",
     "plot_mode2",
     "plot_residual_spectrogram",
-    "plot_zeta1",
     "write_amplitude_figures",
 ]
 
@@ -89,15 +88,23 @@ def _bin_arrays(curves: Any, name: str) -> tuple[np.ndarray, np.ndarray, np.ndar
             np.array([getattr(x, name + "_se") for x in b]))
 
 
-def plot_f1(curves: Any, *, extra: Extra | None = None, title: str = "") -> Any:
-    """Figure (a): mode-1 frequency against mode-1 amplitude.
+#: Mode-1 panels: attribute of the bins, column arrays of the windows, axis label, title.
+_MODE1 = {"f1": ("f1", "frequency", "f1 [Hz]", "mode-1 frequency against amplitude"),
+          "zeta1": ("zeta1", "zeta", "ζ1", "mode-1 damping ratio against amplitude")}
+
+
+def plot_mode1(curves: Any, which: str, *, extra: Extra | None = None,
+               title: str = "") -> Any:
+    """Figure (a) or (b): mode-1 frequency or damping ratio against mode-1 amplitude.
 
     Parameters
     ----------
     curves : bayesbeam.trials.amplitude.AmplitudeCurves
         The window estimates.
+    which : {"f1", "zeta1"}
+        Frequency (Hz) or damping ratio.
     extra : mapping, optional
-        Curves ``{label: (amplitude_m, f1_hz)}`` drawn over the data.
+        Curves ``{label: (amplitude_m, values)}`` drawn over the data.
     title : str
         Figure title.
 
@@ -105,37 +112,15 @@ def plot_f1(curves: Any, *, extra: Extra | None = None, title: str = "") -> Any:
     -------
     matplotlib.figure.Figure
     """
+    if which not in _MODE1:
+        raise ValueError(f"which must be one of {sorted(_MODE1)}, got {which!r}")
+    attr, column, label, default = _MODE1[which]
     fig = _figure()
     ax = fig.add_subplot()
-    bx, by, bse = _bin_arrays(curves, "f1")
-    _panel(ax, curves, curves.amplitude_m, curves.frequency[:, 0], curves.frequency_se[:, 0],
-           bx, by, bse, "f1 [Hz]", extra)
-    ax.set_title(title or "mode-1 frequency against amplitude")
-    return fig
-
-
-def plot_zeta1(curves: Any, *, extra: Extra | None = None, title: str = "") -> Any:
-    """Figure (b): mode-1 damping ratio against mode-1 amplitude.
-
-    Parameters
-    ----------
-    curves : bayesbeam.trials.amplitude.AmplitudeCurves
-        The window estimates.
-    extra : mapping, optional
-        Curves ``{label: (amplitude_m, zeta1)}`` drawn over the data.
-    title : str
-        Figure title.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    fig = _figure()
-    ax = fig.add_subplot()
-    bx, by, bse = _bin_arrays(curves, "zeta1")
-    _panel(ax, curves, curves.amplitude_m, curves.zeta[:, 0], curves.zeta_se[:, 0],
-           bx, by, bse, "ζ1", extra)
-    ax.set_title(title or "mode-1 damping ratio against amplitude")
+    bx, by, bse = _bin_arrays(curves, attr)
+    values, se = getattr(curves, column), getattr(curves, column + "_se")
+    _panel(ax, curves, curves.amplitude_m, values[:, 0], se[:, 0], bx, by, bse, label, extra)
+    ax.set_title(title or default)
     return fig
 
 
@@ -237,10 +222,10 @@ def write_amplitude_figures(curves: Any, outdir: str | Path, *,
     extra = extra or {}
     pre = f"{title}: " if title else ""
     figs = {
-        "f1": plot_f1(curves, extra=extra.get("f1"),
-                      title=pre + "mode-1 frequency against amplitude"),
-        "zeta1": plot_zeta1(curves, extra=extra.get("zeta1"),
-                            title=pre + "mode-1 damping ratio against amplitude"),
+        "f1": plot_mode1(curves, "f1", extra=extra.get("f1"),
+                         title=pre + _MODE1["f1"][3]),
+        "zeta1": plot_mode1(curves, "zeta1", extra=extra.get("zeta1"),
+                            title=pre + _MODE1["zeta1"][3]),
         "mode2": plot_mode2(curves, extra=extra.get("mode2"),
                             title=pre + "mode 2 against mode-1 amplitude"),
         "spectrogram": plot_residual_spectrogram(
