@@ -23,6 +23,9 @@ cause                   size
 kv                      KV with ζ1 = 0.08 % on a viscous beam (baseline viscous)
 sh                      broad kernel b = L, ζ1 = 0.2 % (baseline viscous)
 tip_mass                5 % of the beam mass
+added_mass              5 % of the beam mass at 0.85 L (its own test: data from 64
+                        elements with the mass declared in the beam, fitted from 16
+                        with mesh refinement)
 root_spring             f1 -3 % (acceleration); f1 -10 % (displacement: at -3 % a
                         tap record cannot separate it from a stiffness gradient,
                         Δ log Z ≈ 2.3 < 3)
