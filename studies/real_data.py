@@ -45,6 +45,14 @@ Findings (full setting, seed 0, one run on 2 shared cores, 4-11 min per record)
   27-45 % toward the tip (g = 0.27-0.45): a stand-in for the sensor and cable mass
   near the tip (6 cm from it, where the catalogue's point tip mass is not), which the
   evidence prefers to a point mass at the tip on the 50 and 60 cm records.
+* With ``added_mass`` in the catalogue (run after the findings above, structural
+  candidates and AR(1) only: ``--records enes-alu-50cm enes-alu-60cm --candidates
+  tip_mass,added_mass,root_spring,stiffness_gradient,ar1_noise --max-rounds 2``): a
+  point mass of 4.01 ± 0.04 g at 6.69 ± 0.25 cm from the tip (50 cm) and 5.37 ± 0.10 g
+  at 6.25 ± 0.27 cm (60 cm), where the sensor board sits, explains the records nearly as
+  well as the gradient (log Z 3.4 and 3.0 nats lower, Δ ELPD equal within its se), with
+  E 63.7 and 66.8 GPa; the gradient is still named, by a hair. The two lengths agree on
+  the position, not on the mass.
 * Reliability: the 1000-step chains do not meet the convergence criteria (notes in
   the JSON); the same AR(1) model sampled twice on the 60 cm record gave log Z 29
   nats apart, far beyond the bridge-sampling error, and some Δ ELPD values are off
