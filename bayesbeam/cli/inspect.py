@@ -58,7 +58,7 @@ def register(subparsers: Any) -> None:
             "Fit damped sinusoids in sliding windows of a few mode-1 periods on the raw "
             "time stamps; report f1 and ζ1 against amplitude, f2/f1 and ζ2 where mode 2 "
             "is resolved, the offset and the residual's spectral lines. Writes "
-            "inspect.json and PNG figures to OUTDIR. SI units throughout."
+            "inspect.json, PNG figures and report.html to OUTDIR. SI units throughout."
         ),
     )
     opts.add_trial_argument(sp)
@@ -186,5 +186,8 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(record, indent=2, allow_nan=False)
     (outdir / "inspect.json").write_text(text + "\n", encoding="utf-8")
     write_amplitude_figures(curves, outdir, title=trial.name)
+    from bayesbeam.report.html import write_report
+
+    write_report(outdir, title=f"bayesbeam inspect: {trial.name}")
     print(text if args.json else summary_text(record))
     return 0

@@ -14,6 +14,8 @@ file in a folder                rendered as
 ``summary.json``                one fit: posterior mean, sd and 5/50/95 % quantiles,
                                 convergence diagnostics, provenance, priors
 ``score.json``                  one fit's evidence and criteria
+``inspect.json``                what the data say before any model (``bayesbeam
+                                inspect``): f1, ζ1, f2/f1 per amplitude bin, residual lines
 ``*.png``                       figures (data vs fits, residuals, corner plots, ...),
                                 embedded as base64 ``data:`` URIs
 ==============================  =========================================================
@@ -353,8 +355,28 @@ def _replication_section(rep: dict) -> str:
     return "".join(parts)
 
 
+def _inspect_section(rec: dict) -> str:
+    """Amplitude bins and residual lines of an ``inspect.json`` record."""
+    head = ["tip amplitude [mm]", "windows", "f1 [Hz]", "ζ1", "f2/f1", "ζ2"]
+    rows = [[_fmt(None if b.get("amplitude_m") is None else 1e3 * b["amplitude_m"], ".3g"),
+             str(b.get("n", "")), _pm(b.get("f1"), b.get("f1_se"), ".5f"),
+             _pm(b.get("zeta1"), b.get("zeta1_se"), ".5f"),
+             _pm(b.get("ratio"), b.get("ratio_se"), ".4f"),
+             _pm(b.get("zeta2"), b.get("zeta2_se"), ".5f")]
+            for b in rec.get("bins", [])]
+    lines = rec.get("residual_lines", [])
+    txt = ("; ".join(f"{_fmt(x.get('frequency_hz'), '.2f')} Hz ({_esc(x.get('label'))})"
+                     for x in lines) if lines else "none above the threshold")
+    return (f"<p>{_esc(rec.get('trial', ''))}: {len(rec.get('windows', {}).get('centre_s', []))}"
+            f" windows of {_fmt(rec.get('window_s'), '.3g')} s on the raw stamps, no model. "
+            f"Residual lines: {txt}.</p>" + _table(head, rows))
+
+
 def _folder_body(folder: Path) -> str:
     parts = []
+    if (folder / "inspect.json").is_file():
+        parts.append("<h3>What the data say before any model</h3>"
+                     + _inspect_section(_read_json(folder / "inspect.json")))
     rep = folder / "replication.json"
     if rep.is_file():
         parts.append(_replication_section(_read_json(rep)))
@@ -377,7 +399,8 @@ def _folder_body(folder: Path) -> str:
     return "".join(parts)
 
 
-_MARKERS = ("summary.json", "comparison.json", "replication.json", "replication.txt")
+_MARKERS = ("summary.json", "comparison.json", "replication.json", "replication.txt",
+            "inspect.json")
 
 
 def _interesting(folder: Path) -> bool:

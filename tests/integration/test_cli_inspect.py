@@ -48,6 +48,10 @@ def test_inspect_writes_record_figures_and_summary(trial_toml, tmp_path, capsys)
     assert rec["bins"] and rec["bins"][-1]["ratio"] == pytest.approx(6.5, rel=1e-3)
     assert "largest amplitude bin" in out and "f2/f1" in out and "offset" in out
     assert err == ""  # no progress for a run of a second
+    page = (tmp_path / "report.html").read_text(encoding="utf-8")
+    assert "What the data say before any model" in page
+    assert page.count("data:image/png;base64,") == len(FIGURES)
+    assert f"{rec['bins'][-1]['f1']:.5f}" in page  # the bin table
     code, out, _ = _run(capsys, "inspect", trial_toml, "-o", tmp_path, "--json",
                         "--periods", "3", "--modes", "1")
     assert code == 0 and json.loads(out)["settings"]["periods"] == 3.0
