@@ -345,6 +345,16 @@ def describe_signatures(sig: Any) -> list[str]:
         out.append(f"Decay rate vs amplitude (mode 1): excess decay rate at the initial amplitude "
                    f"data − model {100 * sig.decay_excess_diff:+.0f} ± "
                    f"{100 * sig.decay_excess_diff_err:.0f} %.")
+    tr = getattr(sig, "amplitude_trends", {})
+    if "data" in tr and "model" in tr and math.isfinite(tr["data"]["f1_hz_per_mm"]):
+        d, m = tr["data"], tr["model"]
+        out.append(
+            f"Against the mode-1 tip amplitude ({1e3 * d['amplitude_min_m']:.2g}-"
+            f"{1e3 * d['amplitude_max_m']:.2g} mm, {d['n_windows']} windows): f1 data "
+            f"{1e3 * d['f1_hz_per_mm']:+.3g} ± {1e3 * d['f1_hz_per_mm_se']:.2g} vs model "
+            f"{1e3 * m['f1_hz_per_mm']:+.3g} mHz/mm; ζ1 data {d['zeta1_per_mm']:+.2e} ± "
+            f"{d['zeta1_per_mm_se']:.1e} vs model {m['zeta1_per_mm']:+.2e} per mm (f1 falling "
+            "with amplitude: softening; ζ1 rising: drag, falling: friction).")
     out.append(f"Residual mean {sig.residual_mean:.3g} (z = {sig.residual_mean_z:.1f}); "
                f"{100 * sig.lowfreq_fraction:.1f} % of the residual power below f1/2.")
     return out

@@ -50,6 +50,7 @@ from bayesbeam.stats.whiteness import autocorrelation, ljung_box
 from bayesbeam.trials.modal_id import (
     DecayAmplitude,
     ModalEstimate,
+    SignatureError,
     damped_sinusoids,
     decay_rate_vs_amplitude,
     periodogram,
@@ -242,6 +243,7 @@ class Signatures:
     coverage50: float
     coverage90: float
     notes: tuple[str, ...] = field(default_factory=tuple)
+    amplitude_trends: dict[str, Any] = field(default_factory=dict)
 
     @property
     def white(self) -> bool:
@@ -289,6 +291,10 @@ class Signatures:
             },
             "coverage": {"central50": finite_or_none(self.coverage50),
                          "central90": finite_or_none(self.coverage90)},
+            "amplitude_trends": {
+                side: {k: (v if isinstance(v, int) else finite_or_none(v))
+                       for k, v in tr.items()}
+                for side, tr in self.amplitude_trends.items()},
             "notes": list(self.notes),
         }
 
@@ -403,6 +409,7 @@ def compute_signatures(
         else:
             ddiff = dd.excess - dm.excess
             ddiff_err = math.hypot(dd.excess_se, dm.excess_se)
+    trends = _amplitude_trends(trial, t, data, pred, f1_ref, notes)
     lo, hi = np.quantile(y_rep, [0.05, 0.95], axis=0)
     q25, q75 = np.quantile(y_rep, [0.25, 0.75], axis=0)
     return Signatures(
@@ -444,7 +451,46 @@ def compute_signatures(
         coverage50=float(np.mean((data >= q25) & (data <= q75))),
         coverage90=float(np.mean((data >= lo) & (data <= hi))),
         notes=tuple(notes),
+        amplitude_trends=trends,
     )
+
+
+def _amplitude_trends(trial: Any, t: np.ndarray, data: np.ndarray, pred: np.ndarray,
+                      f1: float, notes: list[str]) -> dict[str, dict[str, float]]:
+    """f1 and ζ1 against the mode-1 tip amplitude, for the data and the model's prediction.
+
+    Sliding windows of four mode-1 periods (:func:`bayesbeam.trials.amplitude.
+    amplitude_curves`), summarised by the slope per mm of amplitude
+    (:func:`~bayesbeam.trials.amplitude_bins.amplitude_trend`). Where the model is linear
+    its slopes are ~0; the data's slopes beyond theirs say what changes with amplitude:
+    f1 falling with amplitude (softening), ζ1 rising (drag) or falling (friction).
+    Empty when the record holds fewer than three windows.
+    """
+    from bayesbeam.trials.amplitude import amplitude_curves
+    from bayesbeam.trials.amplitude_bins import amplitude_trend, tip_factor
+
+    out: dict[str, dict[str, float]] = {}
+    if not (np.isfinite(f1) and f1 > 0) or t[-1] - t[0] < 3 * 4.0 / f1:
+        notes.append("amplitude trends: record shorter than three windows of 4 periods")
+        return out
+    tf = tip_factor(trial.beam)
+    for side, y in (("data", data), ("model", pred)):
+        try:
+            c = amplitude_curves(t, y, f1=f1, n_modes=1, quantity=trial.quantity,
+                                 tip_factor=tf)
+        except SignatureError as err:  # too short, or no mode-1 peak: say so
+            notes.append(f"amplitude trends ({side}): {err}")
+            return {}
+        fs, fse, nf = amplitude_trend(c.amplitude_m, c.frequency[:, 0], c.frequency_se[:, 0],
+                                      hop=c.hop_s, window=c.window_s)
+        zs, zse, _ = amplitude_trend(c.amplitude_m, c.zeta[:, 0], c.zeta_se[:, 0],
+                                     hop=c.hop_s, window=c.window_s)
+        amp = c.amplitude_m[np.isfinite(c.amplitude_m)]
+        out[side] = {"f1_hz_per_mm": fs, "f1_hz_per_mm_se": fse, "zeta1_per_mm": zs,
+                     "zeta1_per_mm_se": zse, "n_windows": nf,
+                     "amplitude_min_m": float(amp.min()) if amp.size else math.nan,
+                     "amplitude_max_m": float(amp.max()) if amp.size else math.nan}
+    return out
 
 
 # --------------------------------------------------------------------------- plots

@@ -166,3 +166,44 @@ def tip_factor(beam: Any, n_elements: int = 24) -> float:
     _, vec = sla.eigh(fe.K, fe.M, subset_by_index=[0, 0])
     v = vec[:, 0]
     return float(fe.tip @ v / (fe.shape(beam.sensor_x)[0] @ v))
+
+
+def amplitude_trend(amplitude_m: np.ndarray, values: np.ndarray, se: np.ndarray, *,
+                    hop: float, window: float) -> tuple[float, float, int]:
+    """Slope of a window estimate against the mode-1 amplitude, per mm, with its se.
+
+    Weighted least squares of ``values`` on ``1e3 * amplitude_m`` (weights ``1/se²``);
+    the slope's standard error is inflated by the window-overlap variance factor
+    (:func:`overlap_factor` over the windows used), as neighbouring windows share
+    samples. A linear trend summarises what the amplitude curves show: f1 falling with
+    amplitude is softening, ζ1 rising with it drag, ζ1 falling with it friction.
+
+    Parameters
+    ----------
+    amplitude_m : ndarray, shape (W,)
+        Mode-1 tip amplitude of each window, m.
+    values, se : ndarray, shape (W,)
+        The estimate (e.g. f1 in Hz or ζ1) and its standard error; NaN where unresolved.
+    hop, window : float
+        Hop and window length, s.
+
+    Returns
+    -------
+    slope : float
+        Per mm of amplitude (NaN with fewer than 3 usable windows or no amplitude spread).
+    slope_se : float
+    n : int
+        Windows used.
+    """
+    a = 1e3 * np.asarray(amplitude_m, dtype=float)
+    v, s = np.asarray(values, dtype=float), np.asarray(se, dtype=float)
+    ok = np.isfinite(a) & np.isfinite(v) & np.isfinite(s) & (s > 0)
+    n = int(ok.sum())
+    if n < 3 or np.ptp(a[ok]) <= 0:
+        return math.nan, math.nan, n
+    w = 1.0 / s[ok] ** 2
+    X = np.column_stack([np.ones(n), a[ok]])
+    cov = np.linalg.inv(X.T @ (w[:, None] * X))
+    beta = cov @ (X.T @ (w * v[ok]))
+    g = overlap_factor(n, hop, window)
+    return float(beta[1]), float(math.sqrt(cov[1, 1] * g)), n
