@@ -28,12 +28,12 @@ docstring) and writes into ``OUTDIR``:
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import sys
 from pathlib import Path
 from typing import Any
 
+from bayesbeam._util import one_blas_thread
 from bayesbeam.cli import options as opts
 from bayesbeam.inference.settings import DIAGNOSIS_DEFAULTS
 
@@ -135,13 +135,7 @@ def run(args: argparse.Namespace) -> int:
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     log = None if args.json else (lambda s: print(s, file=sys.stderr, flush=True))
-    with contextlib.ExitStack() as stack:
-        try:  # small batched matrices: BLAS threads cost more than they give
-            from threadpoolctl import threadpool_limits
-
-            stack.enter_context(threadpool_limits(limits=1))
-        except ImportError:  # optional; only the speed depends on it
-            pass
+    with one_blas_thread():
         d = diagnose(
             trial, model, max_rounds=args.max_rounds,
             candidates=tuple(cands) if cands else CATALOGUE, initial=args.initial,

@@ -27,13 +27,13 @@ a few seconds.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from bayesbeam._util import one_blas_thread
 from bayesbeam.cli import options as opts
 
 __all__ = ["InspectCLIError", "register", "run", "summary_text"]
@@ -168,13 +168,7 @@ def run(args: argparse.Namespace) -> int:
     if args.window is not None:
         trial = trial.window(*args.window)
     tic = time.perf_counter()
-    with contextlib.ExitStack() as stack:
-        try:  # small matrices: BLAS threads cost more than they give (3x on 2 busy cores)
-            from threadpoolctl import threadpool_limits
-
-            stack.enter_context(threadpool_limits(limits=1))
-        except ImportError:  # optional; only the speed depends on it
-            pass
+    with one_blas_thread():
         curves = amplitude_curves(trial.times, trial.values, f1=args.f1, n_modes=args.modes,
                                   periods=args.periods, quantity=trial.quantity,
                                   tip_factor=tip_factor(trial.beam), progress=_Progress())

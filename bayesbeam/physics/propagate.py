@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam._util import one_blas_thread
 from bayesbeam.physics.expm import (
     _MAX_SQUARINGS,
     _PRESCALE_NORM,
@@ -89,11 +90,9 @@ def single_blas_thread(func: Callable[..., Any]) -> Callable[..., Any]:
     -------
     callable
     """
-    from threadpoolctl import threadpool_limits
-
     @wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             return func(*args, **kwargs)
 
     return wrapper

@@ -70,8 +70,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from threadpoolctl import threadpool_limits
 
+from bayesbeam._util import one_blas_thread
 from bayesbeam.trials.modal_id import _fit_modes, periodogram, uniform_grid
 
 __all__ = ["PEAK_FACTOR", "NoiseFloor", "NoiseFloorError", "noise_floor"]
@@ -281,7 +281,7 @@ def noise_floor(times: np.ndarray, values: np.ndarray, *, bandwidth: float | Non
     p = np.empty(0)
     # The fit solves thousands of tall, thin least-squares problems (n × (2K + 1));
     # OpenBLAS threads only slow those down (measured 100x on a loaded 2-core machine).
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         for k in range(cap):  # one component per round
             new = _next_component(t, r, band, p[:k])
             if new is None:
