@@ -10,6 +10,7 @@ JSON record with ``--json``. See :mod:`bayesbeam.comparison.compare` for the rul
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +109,7 @@ def register(subparsers: Any) -> None:
     opts.add_outdir_seed_options(sp)
     opts.add_elements_option(sp, help="Hermite elements")
     opts.add_fixed_mesh_option(sp)
+    opts.add_preprocessing_options(sp)
     sp.add_argument("--target-ess", type=float, default=FIT_DEFAULTS.target_ess,
                     help="effective sample size per parameter to stop at")
     sp.add_argument("--max-steps", type=int, default=FIT_DEFAULTS.max_steps,
@@ -139,8 +141,6 @@ def run(args: argparse.Namespace) -> int:
     """
     from bayesbeam.comparison.compare import compare
     from bayesbeam.physics.models import parse_model
-    from bayesbeam.trials.io import read_trial
-
     models = [parse_model(m.strip()).name for m in str(args.models).split(",") if m.strip()]
     if not models:
         raise CompareCLIError("--models is empty; give e.g. viscous,viscous+kv")
@@ -149,8 +149,13 @@ def run(args: argparse.Namespace) -> int:
     opts.check_options(args, CompareCLIError, "elements")
     if args.max_steps < 1 or args.loo_draws < 2 or not args.target_ess > 0:
         raise CompareCLIError("--max-steps, --target-ess must be positive, --loo-draws >= 2")
+    opts.check_options(args, CompareCLIError, *opts.PREPROCESSING)
+    trial, pre = opts.prepare_trial(
+        args, CompareCLIError, say=lambda s: print(s, file=sys.stderr, flush=True))
     odds = parse_prior_odds(args.prior_odds, models)
-    trial = read_trial(args.trial)
+    models = [pre.model_name(m) for m in models]
+    if odds is not None:
+        odds = {pre.model_name(k): v for k, v in odds.items()}
     outdir = Path(args.outdir)
     result = compare(
         trial,
@@ -159,11 +164,13 @@ def run(args: argparse.Namespace) -> int:
         threshold=args.threshold,
         n_loo_draws=args.loo_draws,
         outdir=outdir,
+        progress=True,
+        initial=pre.initial,
         **opts.fit_settings(args),
     )
-    result.save(outdir)
+    result.save(outdir, extra={"preprocessing": pre.to_json_dict()})
     if args.json:
-        opts.print_json(result.to_json_dict())
+        opts.print_json({**result.to_json_dict(), "preprocessing": pre.to_json_dict()})
     else:
         print(result)
         print(f"\nwrote {outdir}/comparison.{{json,txt,html,png}} and one folder per model")

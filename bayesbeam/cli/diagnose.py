@@ -108,6 +108,11 @@ def _check(args: argparse.Namespace) -> list[str] | None:
     return cands
 
 
+def _say(line: str) -> None:
+    """Progress and preprocessing lines go to stderr (stdout stays the report or JSON)."""
+    print(line, file=sys.stderr, flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     """Execute ``bayesbeam diagnose``.
 
@@ -127,21 +132,22 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.stats.priors import PriorSet
 
     cands = _check(args)
-    model = parse_model(args.baseline)
-    trial = opts.prepare_trial(args)
+    parse_model(args.baseline)  # a bad name fails before the record is read
+    trial, pre = opts.prepare_trial(args, DiagnoseCLIError, say=_say)
+    model = parse_model(pre.model_name(args.baseline))
     priors = None
     if args.priors is not None:
         priors = dict(PriorSet.from_toml(args.priors))
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    log = None if args.json else (lambda s: print(s, file=sys.stderr, flush=True))
     with one_blas_thread():
         d = diagnose(
             trial, model, max_rounds=args.max_rounds,
-            candidates=tuple(cands) if cands else CATALOGUE, initial=args.initial,
-            priors=priors, progress=log, **opts.fit_settings(args),
+            candidates=tuple(cands) if cands else CATALOGUE, initial=pre.initial,
+            priors=priors, progress=_say, **opts.fit_settings(args),
         )
     record = d.to_json_dict()
+    record["preprocessing"] = pre.to_json_dict()
     text = json.dumps(record, indent=2, allow_nan=False)
     (outdir / "diagnosis.json").write_text(text + "\n", encoding="utf-8")
     (outdir / "report.md").write_text(d.narrative(), encoding="utf-8")

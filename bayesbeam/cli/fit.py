@@ -115,18 +115,21 @@ def _check_args(args: argparse.Namespace) -> None:
     opts.check_options(args, FitCLIError, *opts.PREPROCESSING)
 
 
-def _run_record(args: argparse.Namespace, trial: Any, priors: Any) -> dict[str, Any]:
-    """Collect the options that must not change between a run and its ``--resume``."""
-    from bayesbeam.physics.models import parse_model
+def _say(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
 
+
+def _run_record(args: argparse.Namespace, trial: Any, priors: Any, model: str,
+                initial: str) -> dict[str, Any]:
+    """Collect the options that must not change between a run and its ``--resume``."""
     return {
         "trial_sha256": trial.sha256,
         "processing": list(trial.source.get("processing", [])),
         "n_samples": int(trial.times.size),
-        "model": parse_model(args.model).name,
+        "model": model,
         "seed": int(args.seed),
         "n_elements": int(args.elements),
-        "initial": args.initial,
+        "initial": initial,
         "priors": None if priors is None else priors.to_dict(),
     }
 
@@ -237,14 +240,16 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.stats.priors import PriorSet
     from bayesbeam.stats.sampling import NotConvergedWarning
 
-    model = parse_model(args.model)
-    trial = opts.prepare_trial(args)
+    parse_model(args.model)  # a bad name fails before the record is read
+    trial, pre = opts.prepare_trial(args, FitCLIError, say=_say)
+    model = parse_model(pre.model_name(args.model))
+    initial = pre.initial
     priors = None
     if args.priors is not None:
-        base = default_priors(trial, model, n_elements=args.elements, initial=args.initial)
+        base = default_priors(trial, model, n_elements=args.elements, initial=initial)
         priors = PriorSet.from_toml(args.priors, base=base)
     outdir = Path(args.outdir)
-    record = _run_record(args, trial, priors)
+    record = _run_record(args, trial, priors, model.name, initial)
     if args.resume:
         _check_resume(outdir, record)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -252,17 +257,18 @@ def run(args: argparse.Namespace) -> int:
         json.dumps({"record": record, "argv": sys.argv[1:]}, indent=2) + "\n",
         encoding="utf-8",
     )
-    problem = Problem(trial, model, priors, n_elements=args.elements, initial=args.initial)
+    problem = Problem(trial, model, priors, n_elements=args.elements, initial=initial)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
         result = fit(
             trial,
             model,
             priors=priors,
-            initial=args.initial,
+            initial=initial,
             outdir=outdir,
             resume=args.resume,
             problem=problem,
+            progress=True,
             **opts.fit_settings(args),
         )
     other = [w for w in caught if not issubclass(w.category, NotConvergedWarning)]
@@ -282,6 +288,7 @@ def run(args: argparse.Namespace) -> int:
         prior_samples=PRIOR_DRAWS,
     )
     payload = result.to_json_dict()
+    payload["preprocessing"] = pre.to_json_dict()
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["posterior_nc_draws"] = int(groups["thin"].chain.nsteps * groups["thin"].chain.nwalkers)
     # summary.json describes the full chain (posterior.nc holds the thinned draws).

@@ -129,22 +129,37 @@ def add_fixed_mesh_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--initial``, ``--decimate`` | ``--resample`` (exclusive) and ``--window``.
+    """Add the options that fix what :mod:`bayesbeam.trials.preprocess` would choose.
+
+    ``--initial``, ``--window``, ``--decimate`` | ``--resample`` | ``--rate``
+    (exclusive), ``--offset``, ``--max-samples`` and ``--as-is``.
 
     Parameters
     ----------
     parser : argparse.ArgumentParser
         The sub-command's parser.
     """
-    parser.add_argument("--initial", type=initial_condition, default=FIT_DEFAULTS.initial,
-                        help="initial condition: release (default), impulse or modes:K")
+    parser.add_argument("--initial", type=initial_condition, default=None,
+                        help="initial condition: release, impulse or modes:K (default: the "
+                             "trial's declared one, else modes:K for the modes in band)")
     pre = parser.add_mutually_exclusive_group()
     pre.add_argument("--decimate", type=int, default=None, metavar="Q",
                      help="decimate by Q with a zero-phase anti-alias FIR (uniform stamps)")
     pre.add_argument("--resample", type=float, default=None, metavar="DT",
                      help="resample to step DT s with an anti-alias filter (any stamps)")
+    pre.add_argument("--rate", type=float, default=None, metavar="HZ",
+                     help="analysis rate in Hz (default: chosen from the modes in the record)")
     parser.add_argument("--window", type=float, nargs=2, default=None, metavar=("T0", "T1"),
-                        help="keep samples with T0 <= t <= T1 (s, trial time axis)")
+                        help="analysis span T0 <= t <= T1 (s, trial time axis; default: from "
+                             "the release/impact to the end of the motion)")
+    parser.add_argument("--offset", choices=("fit", "none"), default=None,
+                        help="fit a constant signal offset (default for records without a "
+                             "declared initial state) or not")
+    parser.add_argument("--max-samples", type=int, default=None, metavar="N",
+                        help="sample budget that sets the default rate (default 16384)")
+    parser.add_argument("--as-is", action="store_true",
+                        help="no automatic choices: the record as it is (options above still "
+                             "apply)")
 
 
 def add_json_option(parser: argparse.ArgumentParser,
@@ -168,10 +183,13 @@ _CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "decimate": (lambda v: v is None or v >= 1, "--decimate must be an integer >= 1, got {}"),
     "resample": (lambda v: v is None or v > 0, "--resample must be a positive step in s, got {}"),
     "window": (lambda v: v is None or v[0] < v[1], "--window T0 T1 needs T0 < T1, got {}"),
+    "rate": (lambda v: v is None or v > 0, "--rate must be a positive number of Hz, got {}"),
+    "max_samples": (lambda v: v is None or v >= 256,
+                    "--max-samples must be an integer >= 256, got {}"),
 }
 
 #: The options of :func:`add_preprocessing_options` that :func:`check_options` checks.
-PREPROCESSING = ("decimate", "resample", "window")
+PREPROCESSING = ("decimate", "resample", "window", "rate", "max_samples")
 
 
 def check_options(args: argparse.Namespace, error: type[Exception], *names: str) -> None:
@@ -225,32 +243,49 @@ def fit_settings(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def prepare_trial(args: argparse.Namespace) -> Any:
-    """Read ``args.trial``, then cut ``--window`` and apply ``--decimate`` or ``--resample``.
+def prepare_trial(args: argparse.Namespace, error: type[Exception] = ValueError,
+                  say: Callable[[str], None] | None = None) -> tuple[Any, Any]:
+    """Read ``args.trial`` and prepare it for a fit (:func:`bayesbeam.trials.preprocess.prepare`).
 
-    The window comes first, so no data outside it reaches the fit through the
-    decimation filter.
+    The options of :func:`add_preprocessing_options` fix the corresponding choices;
+    the others are made from the record and printed through ``say``.
 
     Parameters
     ----------
     args : argparse.Namespace
         Parsed options with ``trial`` and those of :func:`add_preprocessing_options`.
+    error : type of Exception
+        The command's error class (for ``--decimate`` on non-uniform stamps).
+    say : callable, optional
+        Receives one line per choice (the command prints them on stderr).
 
     Returns
     -------
-    bayesbeam.trials.trial.Trial
-        The trial as the fit sees it.
+    tuple of (bayesbeam.trials.trial.Trial, bayesbeam.trials.preprocess.Preprocessing)
+        The trial as the fit sees it, and the record of the choices.
     """
     from bayesbeam.trials.io import read_trial
+    from bayesbeam.trials.preprocess import prepare
 
     trial = read_trial(args.trial)
+    given: dict[str, Any] = {
+        "initial": args.initial, "offset": args.offset, "max_samples": args.max_samples,
+        "auto": False if args.as_is else None, "rate": args.rate,
+    }
     if args.window is not None:
-        trial = trial.window(*args.window)
-    if args.decimate is not None:
-        trial = trial.decimate(args.decimate)
-    elif args.resample is not None:
-        trial = trial.resample(args.resample)
-    return trial
+        given["start"], given["end"] = args.window
+    if args.resample is not None:
+        given["rate"] = 1.0 / args.resample
+    elif args.decimate is not None:
+        if not trial.is_uniform:
+            raise error("--decimate needs uniform stamps; these are not: use --resample DT "
+                        "or --rate HZ")
+        given["rate"] = 1.0 / (args.decimate * trial.dt)
+    out, pre = prepare(trial, **given)
+    if say is not None:
+        for line in pre.lines():
+            say(f"preprocessing: {line}")
+    return out, pre
 
 
 def print_json(record: Any) -> None:

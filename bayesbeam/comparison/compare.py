@@ -358,7 +358,8 @@ class Comparison:
         fig.savefig(path, dpi=dpi)
         return path
 
-    def save(self, outdir: str | Path, *, fits: bool = True) -> dict[str, Path]:
+    def save(self, outdir: str | Path, *, fits: bool = True,
+             extra: dict[str, Any] | None = None) -> dict[str, Path]:
         """Write ``comparison.{json,txt,html,png}`` and each model's fit.
 
         Parameters
@@ -368,6 +369,8 @@ class Comparison:
         fits : bool
             Also save each FitResult into ``outdir/<model>/`` (``posterior.nc``,
             ``summary.json``).
+        extra : dict, optional
+            Further JSON-ready keys of ``comparison.json`` (e.g. ``preprocessing``).
 
         Returns
         -------
@@ -383,7 +386,8 @@ class Comparison:
             "png": outdir / "comparison.png",
         }
         paths["json"].write_text(
-            json.dumps(self.to_json_dict(), indent=2, allow_nan=False) + "\n", encoding="utf-8"
+            json.dumps({**self.to_json_dict(), **(extra or {})}, indent=2, allow_nan=False)
+            + "\n", encoding="utf-8"
         )
         paths["txt"].write_text(str(self) + "\n", encoding="utf-8")
         paths["html"].write_text(

@@ -11,7 +11,8 @@ here need no truth; each compares the fit with something the data say on their o
   ``sqrt(1.2² - 1) = 0.66`` of the noise;
 * **whiteness** — the Ljung–Box test (Ljung & Box 1978) on the standardised innovations
   (:func:`bayesbeam.stats.likelihood.standardized_innovations`: residuals over σ, or the
-  one-step AR(1) prediction errors) at the posterior-median signal, 20 lags;
+  one-step AR(1) prediction errors) at the posterior-median signal, 20 lags, inside the
+  sensor band (:func:`in_band`: a decimated record's noise is white only there);
 * **spectral lines** — Fisher's (1929) g test on the same innovations: a periodic
   component the model left out (a mode, a harmonic, mains pickup) with its frequency;
 * **predictive coverage** — the share of samples inside the central 90 % posterior-
@@ -19,7 +20,8 @@ here need no truth; each compares the fit with something the data say on their o
 
 Both tests reject at p < 10⁻³ (:data:`LIMITS` ``p_min``), so an adequate model is
 flagged by chance in about 0.2 % of fits. On non-uniform stamps the tests treat the
-series as evenly spaced at the mean step (jitter blurs a line, it does not create one).
+series as evenly spaced at the mean step (jitter blurs a line, it does not create one);
+on a uniform grid with holes, as the whole grid with zeros in the holes.
 When any check fails the record says so in one line (``summary``): the intervals are
 then conditional on a model the data reject, and ``bayesbeam diagnose`` looks for the
 missing effect.
@@ -33,14 +35,52 @@ from typing import Any
 import numpy as np
 
 from bayesbeam.inference.predictive import posterior_predictive
+from bayesbeam.physics.forward import grid_with_holes
 from bayesbeam.stats.likelihood import standardized_innovations
 from bayesbeam.stats.whiteness import fisher_g, ljung_box
 from bayesbeam.trials.noise import noise_floor
 
-__all__ = ["LIMITS", "assess"]
+__all__ = ["LIMITS", "assess", "in_band"]
 
 #: Decision limits of :func:`assess` (see the module docstring for their meaning).
 LIMITS = {"noise_ratio": 1.2, "p_min": 1e-3, "coverage": 0.9, "lags": 20}
+
+
+def in_band(z: np.ndarray, dt: float, band: float) -> tuple[np.ndarray, float]:
+    """Return the part of a series inside the sensor band, resampled to twice the band.
+
+    A record decimated by an anti-alias filter (or taken through a sensor's own) has
+    noise that is white inside its band and falls off above it: tested as it is, the
+    residual of a perfect model fails a whiteness test. Keeping the Fourier
+    coefficients up to ``band`` and transforming back on ``2 (m - 1)`` points (m the
+    coefficients kept) gives a series sampled at about twice the band whose spectrum
+    is the in-band one, white when the in-band noise is; a sinusoid keeps its
+    amplitude (the back transform is scaled by the length ratio).
+
+    Parameters
+    ----------
+    z : ndarray, shape (n,)
+        Evenly spaced series (e.g. standardised innovations).
+    dt : float
+        Its step in s.
+    band : float
+        Band edge in Hz.
+
+    Returns
+    -------
+    tuple of (ndarray, float)
+        The in-band series and its step in s; ``z`` itself when the band reaches
+        90 % of the Nyquist frequency.
+    """
+    n = z.size
+    if not np.isfinite(band) or band >= 0.45 / dt:
+        return z, dt
+    m = int(np.floor(band * n * dt)) + 1  # Fourier frequencies k / (n dt) <= band
+    if m < 8:
+        return z, dt
+    n_out = 2 * (m - 1)
+    zb = np.fft.irfft(np.fft.rfft(z)[:m], n_out) * (n_out / n)
+    return zb, dt * n / n_out
 
 
 def _fmt_p(p: float) -> str:
@@ -86,15 +126,26 @@ def assess(problem: Any, result: Any, *, rng: np.random.Generator,
 
     floor = noise_floor(trial.times, y, bandwidth=trial.sensor_band)
     ratio = sigma / floor.sd if floor.sd > 0 else math.inf
-    lags = int(min(LIMITS["lags"], max(1, n // 5)))
-    q, p_lb = ljung_box(z, lags)
-    g, p_line, k = fisher_g(z)
-    f_line = k / (n * trial.dt)
+    # A uniform grid with holes (resampled around gaps): the tests run on the whole grid
+    # with the missing innovations set to 0, which keeps white noise white.
+    holes = None if trial.is_uniform else grid_with_holes(trial.times - trial.times[0])
+    if holes is None:
+        zg, step = z, trial.dt
+    else:
+        step, index = holes
+        zg = np.zeros(int(index[-1]) + 1)
+        zg[index] = z
+    zb, dtb = in_band(zg, step, trial.sensor_band)
+    nb = zb.size
+    lags = int(min(LIMITS["lags"], max(1, nb // 5)))
+    q, p_lb = ljung_box(zb, lags)
+    g, p_line, k = fisher_g(zb)
+    f_line = k / (nb * dtb)
     # A sinusoid of amplitude A in white noise of unit variance raises its periodogram
     # ordinate (|FFT|² / n) to about n A² / 4, against a mean of 1 elsewhere.
-    zc = z - z.mean()
-    ordinate = np.abs(np.fft.rfft(zc)[k]) ** 2 / n
-    amp_line = 2.0 * math.sqrt(ordinate / n)
+    zc = zb - zb.mean()
+    ordinate = np.abs(np.fft.rfft(zc)[k]) ** 2 / nb
+    amp_line = 2.0 * math.sqrt(ordinate / nb)
     lo, hi = np.quantile(y_rep, [0.05, 0.95], axis=0)
     coverage = float(np.mean((y >= lo) & (y <= hi)))
     level = LIMITS["coverage"]

@@ -568,11 +568,17 @@ def fit(
     if problem is None:
         problem = Problem(trial, model, priors, n_elements=n_elements, initial=initial)
     rng = np.random.default_rng(seed)
-    u_map, lp_map = find_map(problem, rng=rng)
     show = progress if progress is not None else sys.stderr.isatty()
+    say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if show else None
+    if say is not None:
+        say(f"{model.name}: MAP search ({problem.ndim} parameters, {trial.times.size} "
+            "samples)...")
+    t_map = time.perf_counter()
+    u_map, lp_map = find_map(problem, rng=rng)
+    if say is not None:
+        say(f"{model.name}: MAP found in {time.perf_counter() - t_map:.1f} s; mesh check")
     problem, u_map, lp_map, mesh = converge_mesh(
-        problem, u_map, lp_map, local_map, refine=refine_mesh,
-        progress=(lambda msg: print(msg, file=sys.stderr, flush=True)) if show else None,
+        problem, u_map, lp_map, local_map, refine=refine_mesh, progress=say,
     )
     ndim = problem.ndim
     nwalkers = walker_count(nwalkers, ndim)
@@ -655,6 +661,8 @@ def fit(
         mesh=mesh,
     )
     # Its own stream: the checks never change the chain's random numbers.
+    if say is not None:
+        say(f"{model.name}: sampled in {chain.seconds:.1f} s; adequacy checks")
     adequacy = assess(problem, result, rng=np.random.default_rng([seed, 1]))
     if show and not adequacy["ok"]:
         print(f"warning: {adequacy['summary']}", file=sys.stderr, flush=True)

@@ -40,6 +40,7 @@ __all__ = [
     "Forward",
     "ForwardError",
     "Response",
+    "grid_with_holes",
     "initial_names",
     "modal_properties",
     "parameter_columns",
@@ -62,6 +63,27 @@ _LOWER = {
 }
 _UPPER = {"stiffness_gradient": 2.0}
 
+
+
+#: A grid with holes is simulated whole when it has at most this many points per sample.
+GRID_FILL = 1.5
+
+
+def grid_with_holes(t: np.ndarray) -> tuple[float, np.ndarray] | None:
+    """Return ``(step, index)`` when the times ``t`` (from 0) are ``index * step``.
+
+    Such stamps come from a uniform grid with samples dropped (resampling around the
+    gaps of a software-timed record, :meth:`bayesbeam.trials.trial.Trial.resample`):
+    propagating the whole grid (``P^k`` products) and keeping ``index`` is cheaper than
+    the eigendecomposition route for arbitrary times as long as few points are missing
+    (at most :data:`GRID_FILL` grid points per sample). None otherwise.
+    """
+    step = float(np.min(np.diff(t)))
+    k = np.rint(t / step)
+    off_grid = np.abs(t - k * step) > 1e-9 * step * np.maximum(k, 1)
+    if k[-1] + 1 > GRID_FILL * t.size or np.any(off_grid):
+        return None
+    return step, k.astype(np.int64)
 
 class ForwardError(ValueError):
     """The forward model was set up or called with invalid input."""
@@ -249,6 +271,7 @@ class Forward:
         self._t = t - t[0]
         self._dt = float(np.mean(steps))
         self.uniform = bool(np.max(np.abs(steps - self._dt)) <= 1e-9 * self._dt)
+        self._grid = None if self.uniform else grid_with_holes(self._t)
         self.initial = initial
         self._init_names = initial_names(initial)
         root_dof = beam.root_spring is not None or "root_spring" in self.model.structural
@@ -576,6 +599,12 @@ class Forward:
                 yy, ok = propagate.response_uniform(
                     A, z0, h, self._dt, self._t.size, return_valid=True
                 )
+            elif self._grid is not None:  # a uniform grid with holes: simulate it whole
+                step, index = self._grid
+                yy, ok = propagate.response_uniform(
+                    A, z0, h, step, int(index[-1]) + 1, return_valid=True
+                )
+                yy = yy[:, index]
             else:
                 yy, ok = propagate.response_times(A, z0, h, self._t, return_valid=True)
         ok &= np.all(np.isfinite(yy), axis=1)

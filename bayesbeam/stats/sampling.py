@@ -318,37 +318,79 @@ def preburn_walkers(
 
 
 class _Progress:
-    """Minimal one-line progress report on stderr (emcee's own needs tqdm)."""
+    """Progress of the sampler on stderr: stage, steps, ESS and an estimate of the time left.
 
-    def __init__(self, enabled: bool, max_steps: int, min_interval: float = 0.5):
+    On a terminal one line is rewritten in place (every ``min_interval`` s); otherwise
+    (a log file, a pipe) a full line is written every ``log_interval`` s. The time left
+    is ``elapsed × (target_ess / ess_min - 1)`` once the ESS is known (the ESS grows
+    about linearly with the steps after burn-in), else the time to ``max_steps`` at the
+    current pace (an upper bound).
+    """
+
+    def __init__(self, enabled: bool, max_steps: int, target_ess: float,
+                 min_interval: float = 0.5, log_interval: float = 10.0):
         self.enabled = enabled
         self.max_steps = max_steps
-        self.min_interval = min_interval
+        self.target_ess = target_ess
+        self.tty = bool(getattr(sys.stderr, "isatty", lambda: False)())
+        self.min_interval = min_interval if self.tty else log_interval
         self._last = -math.inf
         self._info = ""
-        self._shown = False
+        self._ess = math.nan
+        self._shown: int | bool = False
+        self._step = 0
+        self._t0 = time.monotonic()
+        self._step0: int | None = None
 
     def set_info(self, check: Check) -> None:
         tmax = float(np.max(check.tau))
         self._info = f"  tau_max {tmax:.1f}" if math.isfinite(tmax) else ""
         if not np.any(np.isnan(check.ess)):
-            self._info += f"  ess_min {float(np.min(check.ess)):.0f}"
+            self._ess = float(np.min(check.ess))
+            self._info += f"  ess_min {self._ess:.0f}/{self.target_ess:g}"
+
+    def _eta(self, step: int) -> str:
+        elapsed = time.monotonic() - self._t0
+        done = step - (self._step0 or 0)
+        if done <= 0 or elapsed < 1.0:
+            return ""
+        to_max = elapsed / done * (self.max_steps - step)
+        if math.isfinite(self._ess) and self._ess > 0:
+            left = min(to_max, elapsed * max(self.target_ess / self._ess - 1.0, 0.0))
+            return f"  ~{_duration(left)} left"
+        return f"  at most ~{_duration(to_max)} left"
 
     def update(self, step: int, force: bool = False) -> None:
         if not self.enabled:
             return
+        if self._step0 is None:
+            self._step0, self._t0 = step - 1, time.monotonic()
+        self._step = step
         now = time.monotonic()
         if not force and now - self._last < self.min_interval:
             return
         self._last = now
-        sys.stderr.write(f"\remcee: step {step}/{self.max_steps}{self._info}\x1b[K")
+        self._write(step)
+
+    def _write(self, step: int) -> None:
+        text = f"emcee: step {step}/{self.max_steps}{self._info}{self._eta(step)}"
+        sys.stderr.write(f"\r{text}\x1b[K" if self.tty else text + "\n")
         sys.stderr.flush()
-        self._shown = True
+        self._shown = step
 
     def close(self) -> None:
-        if self.enabled and self._shown:
+        if not self.enabled:
+            return
+        if not self.tty and self._step0 is not None and self._shown != self._step:
+            self._write(self._step)  # the last state, also between two log lines
+        elif self.tty and self._shown:
             sys.stderr.write("\n")
             sys.stderr.flush()
+
+
+def _duration(seconds: float) -> str:
+    """Return ``seconds`` as '42 s' or '3.5 min'."""
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
 
 # --------------------------------------------------------------------------------------
@@ -611,7 +653,7 @@ def run_emcee(
         # emcee restored the RNG state saved with the last step; continue from there.
         state = backend.get_last_sample()
 
-    bar = _Progress(bool(progress), max_steps)
+    bar = _Progress(bool(progress), max_steps, target_ess)
 
     def evaluate(n: int, prev_tau: np.ndarray | None) -> Check:
         return check_convergence(
@@ -652,7 +694,7 @@ def run_emcee(
             check = evaluate(it, prev_tau)
             prev_tau = check.tau
             bar.set_info(check)
-            bar.update(it, force=True)
+            bar.update(it, force=bar.tty)
             save_meta()
     finally:
         save_meta()

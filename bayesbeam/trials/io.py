@@ -25,6 +25,9 @@ in ``data/README.md``)::
     tip_deflection = 0.005           # m
     note = "released from a static tip load"
 
+    [analysis]                       # optional: fix choices of bayesbeam.trials.preprocess
+    start = 0.25                     # s (also end, rate, initial, offset, max_samples, auto)
+
     [meta]                           # optional, free-form
 
 Values are converted to SI units when read, so a :class:`~bayesbeam.trials.trial.Trial`
@@ -58,7 +61,7 @@ _SIGNAL_REQUIRED = (
     "sensor_position",
 )
 _SIGNAL_OPTIONAL = ("t0", "delimiter", "bandwidth")
-_TOP_KEYS = ("name", "format_version", "signal", "beam", "initial", "meta")
+_TOP_KEYS = ("name", "format_version", "signal", "beam", "initial", "analysis", "meta")
 FORMAT_VERSION = 1
 
 
@@ -197,7 +200,8 @@ def read_trial(path: str | Path) -> Trial:
 
     initial = doc.get("initial", {})
     meta = doc.get("meta", {})
-    for key, tab in (("initial", initial), ("meta", meta)):
+    analysis = doc.get("analysis", {})
+    for key, tab in (("initial", initial), ("analysis", analysis), ("meta", meta)):
         if not isinstance(tab, dict):
             raise TrialError(f"{path}: {key} must be a table ([{key}]), got {tab!r}")
     name = doc.get("name", path.stem)
@@ -232,6 +236,7 @@ def read_trial(path: str | Path) -> Trial:
             initial=initial,
             meta=meta,
             bandwidth=bandwidth,
+            analysis=analysis,
         )
     except TrialError as err:
         raise TrialError(f"{csv_path} (columns {time_column!r}, {value_column!r}): {err}") from None
@@ -391,6 +396,8 @@ def write_trial(trial: Trial, path: str | Path, *, unit: str | None = None) -> P
         doc["signal"]["bandwidth"] = trial.bandwidth
     if trial.initial:
         doc["initial"] = dict(trial.initial)
+    if trial.analysis:
+        doc["analysis"] = dict(trial.analysis)
     if meta:
         doc["meta"] = meta
     text = (

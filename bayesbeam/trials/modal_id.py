@@ -39,6 +39,7 @@ import scipy.optimize as sopt
 import scipy.signal as ssig
 
 from bayesbeam._util import finite_or_none
+from bayesbeam.physics.forward import grid_with_holes
 from bayesbeam.stats.whiteness import autocorrelation
 
 __all__ = [
@@ -73,14 +74,24 @@ def uniform_grid(times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.
 
     Returns
     -------
-    grid : ndarray, shape (T,)
+    grid : ndarray, shape (T,) or (G,)
         ``times[0] + k dt`` in s.
-    y : ndarray, shape (T,)
+    y : ndarray, shape (T,) or (G,)
         Signal on the grid.
     dt : float
-        Mean step in s.
+        Mean step in s; for a uniform grid with holes (a record resampled around its
+        gaps, :func:`bayesbeam.physics.forward.grid_with_holes`) the grid's own step,
+        the G grid points covering the holes, which hold the series' mean (no
+        interpolation across a hole: a straight line or a spline over a tenth of a
+        second puts spurious low frequencies into a spectrum).
     """
     t, y = _as_series(times, values)
+    holes = grid_with_holes(t - t[0])
+    if holes is not None and holes[1].size < int(holes[1][-1]) + 1:
+        step, index = holes
+        filled = np.full(int(index[-1]) + 1, float(np.mean(y)))
+        filled[index] = y
+        return t[0] + step * np.arange(filled.size), filled, step
     dt = float((t[-1] - t[0]) / (t.size - 1))
     grid = t[0] + dt * np.arange(t.size)
     if np.max(np.abs(grid - t)) <= 1e-6 * dt:

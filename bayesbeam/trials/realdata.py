@@ -301,6 +301,7 @@ def load_enes(
     duration: float | None = 5.0,
     settle: float = 0.1,
     search: float = 3.0,
+    raw: bool = False,
 ) -> Trial:
     """Load one aluminium release record (enes-alu-release) as a trial.
 
@@ -321,6 +322,11 @@ def load_enes(
     search : float
         The largest |a| (the release) is sought within the first ``search`` s
         (PROVENANCE.md: always within the first 0.8 s).
+    raw : bool
+        Return the whole record as recorded (g converted to m/s^2, nothing else: no
+        baseline, no window, no declared initial state), for
+        :mod:`bayesbeam.trials.preprocess` to choose and report the analysis;
+        ``duration``, ``settle`` and ``search`` are then not used.
 
     Returns
     -------
@@ -360,6 +366,10 @@ def load_enes(
         raise RealDataError(f"{label}: non-finite values or non-increasing time stamps")
     # Baseline: the oscillation has decayed over most of the 20 s; the static level left
     # (0.04-0.06 g, PROVENANCE.md) is a sensor offset / orientation, not beam motion.
+    if raw:
+        return _raw_trial(t, a_g, enes_beam(length_cm), f"enes-alu-{length_cm}cm-{index}",
+                          path, "npy [time s, acceleration g]",
+                          _enes_meta(path, int(length_cm)), [])
     tail = t >= t[-1] - 2.0
     baseline_g = float(np.mean(a_g[tail]))
     a_g = a_g - baseline_g
@@ -367,39 +377,16 @@ def load_enes(
     i_peak = int(np.argmax(np.abs(np.where(early, a_g, 0.0))))
     t_peak = float(t[i_peak])
     mask = _window_after(t, t_peak, settle, duration, label)
-    digest = file_sha256(path)
     deflection_cm = 4 if "4cmID" in path.parent.name else 2
-    f1, f2 = _ENES_DOCUMENTED_HZ.get(length_cm, (math.nan, math.nan))
-    meta: dict[str, Any] = {
-        "dataset": ENES,
-        "record": path.parent.name,
-        "length_cm": int(length_cm),
-        "licence": "MIT, Copyright 2024 Enes Demirkaya (LICENSE-MIT.txt beside the data)",
-        "source_repository": "EnesDemirkaya/Vibration-Tester-ADXL357-FFT",
-        "source_commit": "14e12b7c1a54e64a6b5b240056880f458503f142",
-        "sha256_matches_provenance": digest.startswith(
-            _ENES_SHA256_PREFIX.get(path.parent.name, "-")
-        ),
+    meta = _enes_meta(path, int(length_cm))
+    digest = meta.pop("sha256")
+    meta.update({
         "baseline_g": baseline_g,
         "baseline_note": "mean of the last 2 s of the record, subtracted",
         "release_peak_time_s": t_peak,
         "settle_s": settle,
         "window_s": [float(t[mask][0]), float(t[mask][-1])],
-        "nominal_release_tip_deflection_m": deflection_cm / 100.0,
-        "documented_tip_mass_kg": 0.01,
-        "tip_mass_note": (
-            "source MATLAB script Mt = 0.01 kg, README 5 g; not in the Beam (tip_mass 0). "
-            "PROVENANCE: E-B with 5 g matches the measured f1"
-        ),
-        "sensor_note": (
-            "ADXL357 Z axis 6 cm from the free end (folder names; the 30/60 cm folders "
-            "say only 'at 6cm')"
-        ),
-        "documented_f1_hz": f1,
-        "documented_f2_hz": f2,
-        "nominal_E_Pa": 70e9,
-        "density_kg_m3": 2700.0,
-    }
+    })
     trial = Trial(
         times=t[mask],
         values=a_g[mask] * STANDARD_GRAVITY,
@@ -429,6 +416,85 @@ def load_enes(
     return trial
 
 
+def _enes_meta(path: Path, length_cm: int) -> dict[str, Any]:
+    """Metadata of an enes record (documented values; ``sha256`` of the file included)."""
+    digest = file_sha256(path)
+    deflection_cm = 4 if "4cmID" in path.parent.name else 2
+    f1, f2 = _ENES_DOCUMENTED_HZ.get(length_cm, (math.nan, math.nan))
+    return {
+        "dataset": ENES,
+        "record": path.parent.name,
+        "length_cm": length_cm,
+        "licence": "MIT, Copyright 2024 Enes Demirkaya (LICENSE-MIT.txt beside the data)",
+        "source_repository": "EnesDemirkaya/Vibration-Tester-ADXL357-FFT",
+        "source_commit": "14e12b7c1a54e64a6b5b240056880f458503f142",
+        "sha256": digest,
+        "sha256_matches_provenance": digest.startswith(
+            _ENES_SHA256_PREFIX.get(path.parent.name, "-")
+        ),
+        "nominal_release_tip_deflection_m": deflection_cm / 100.0,
+        "documented_tip_mass_kg": 0.01,
+        "tip_mass_note": (
+            "source MATLAB script Mt = 0.01 kg, README 5 g; not in the Beam (tip_mass 0). "
+            "PROVENANCE: E-B with 5 g matches the measured f1"
+        ),
+        "sensor_note": (
+            "ADXL357 Z axis 6 cm from the free end (folder names; the 30/60 cm folders "
+            "say only 'at 6cm')"
+        ),
+        "documented_f1_hz": f1,
+        "documented_f2_hz": f2,
+        "nominal_E_Pa": 70e9,
+        "density_kg_m3": 2700.0,
+    }
+
+
+def _raw_trial(t: np.ndarray, a_g: np.ndarray, beam: Beam, name: str, path: Path,
+               fmt: str, meta: dict[str, Any], steps: list[str]) -> Trial:
+    """Return the whole record as a trial: g -> m/s^2 and nothing else (``raw=True``)."""
+    digest = meta.pop("sha256")
+    return Trial(
+        times=t,
+        values=a_g * STANDARD_GRAVITY,
+        quantity="acceleration",
+        beam=beam,
+        name=name,
+        source={
+            "file": str(path),
+            "sha256": digest,
+            "unit": "g",
+            "format": fmt,
+            "processing": [*steps, f"g -> m/s^2 (x {STANDARD_GRAVITY})"],
+        },
+        meta={**meta, "raw": True},
+    )
+
+
+def _hrshm_meta() -> dict[str, Any]:
+    """Documented metadata of the steel record (PROVENANCE.md)."""
+    return {
+        "dataset": HRSHM,
+        "record": "timeseries_data.lvm",
+        "licence": "CC BY-SA 4.0 (LICENSE-CC-BY-SA-4.0.txt beside the data)",
+        "citation": (
+            "Puja Chowdhury, Austin Downey, Jason D. Bakos and Philip Conrad, "
+            '"Dataset-4-univariate-signal-with-nonstationarity," Apr. 2021. '
+            "https://github.com/High-Rate-SHM-Working-Group/"
+            "Dataset-4-Univariate-signal-with-non-stationarity"
+        ),
+        "source_commit": "42c970f7e931e879f9179475b758267d9c12b538",
+        "documented_f_hz": [6.62, 41.4, 117.5],
+        "length_note": (
+            "759 mm is the documented overall length; the free length is not documented "
+            "and 0.759 m is used"
+        ),
+        "sensor_note": "accelerometer 'close to the edge': assumed at the tip",
+        "material_note": "steel, grade not documented: density 7850 kg/m^3, E 200 GPa nominal",
+        "attachment_note": (
+            "shaker and load cell may have stayed attached near the tip (unknown mass)"
+        ),
+    }
+
 def _read_lvm(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
     """Read a 2-column LabVIEW .lvm text file (time, value) and its header fields."""
     lines = path.read_text(encoding="latin-1").splitlines()
@@ -455,6 +521,7 @@ def load_hrshm(
     root: str | Path = DEFAULT_ROOT,
     duration: float | None = 10.0,
     settle: float = 0.1,
+    raw: bool = False,
 ) -> Trial:
     """Load the steel impulse record (hrshm-steel-impulse) as a trial.
 
@@ -471,6 +538,10 @@ def load_hrshm(
     settle : float
         The window starts at the first sample more than ``settle`` s after the impact
         peak (largest |a|), leaving out the contact and the fastest-decaying modes.
+    raw : bool
+        Return the whole record (stamps regenerated, g converted to m/s^2, nothing
+        else), for :mod:`bayesbeam.trials.preprocess`; ``duration`` and ``settle``
+        are then not used.
 
     Returns
     -------
@@ -504,6 +575,15 @@ def load_hrshm(
             f"{path}: time column deviates {dev:.2e} s from a uniform grid; expected the "
             "file's 1 us rounding only"
         )
+    stamps = (f"time stamps regenerated as {t_first!r} + k * {float(dt)!r} s "
+              f"(max deviation from the file {dev:.1e} s)")
+    fmt = "LabVIEW lvm text (23 header lines; time s, acceleration g)"
+    digest = file_sha256(path)
+    if raw:
+        return _raw_trial(t, a_g, hrshm_beam(), "hrshm-steel-impulse", path, fmt,
+                          {**_hrshm_meta(), "sha256": digest,
+                           "sha256_matches_provenance": digest == _HRSHM_SHA256,
+                           "sampling_step_s": float(dt)}, [stamps])
     i_peak = int(np.argmax(np.abs(a_g)))
     t_peak = float(t[i_peak])
     # IEPE sensors are AC coupled; the quiet pre-trigger segment gives the offset.
@@ -514,18 +594,8 @@ def load_hrshm(
     a_g = a_g - baseline_g
     label = f"{HRSHM}/timeseries_data.lvm"
     mask = _window_after(t, t_peak, settle, duration, label)
-    digest = file_sha256(path)
     meta: dict[str, Any] = {
-        "dataset": HRSHM,
-        "record": "timeseries_data.lvm",
-        "licence": "CC BY-SA 4.0 (LICENSE-CC-BY-SA-4.0.txt beside the data)",
-        "citation": (
-            "Puja Chowdhury, Austin Downey, Jason D. Bakos and Philip Conrad, "
-            '"Dataset-4-univariate-signal-with-nonstationarity," Apr. 2021. '
-            "https://github.com/High-Rate-SHM-Working-Group/"
-            "Dataset-4-Univariate-signal-with-non-stationarity"
-        ),
-        "source_commit": "42c970f7e931e879f9179475b758267d9c12b538",
+        **_hrshm_meta(),
         "sha256_matches_provenance": digest == _HRSHM_SHA256,
         "baseline_g": baseline_g,
         "baseline_note": "mean of the samples more than 0.05 s before the impact peak",
@@ -533,16 +603,6 @@ def load_hrshm(
         "settle_s": settle,
         "window_s": [float(t[mask][0]), float(t[mask][-1])],
         "sampling_step_s": float(dt),
-        "documented_f_hz": [6.62, 41.4, 117.5],
-        "length_note": (
-            "759 mm is the documented overall length; the free length is not documented "
-            "and 0.759 m is used"
-        ),
-        "sensor_note": "accelerometer 'close to the edge': assumed at the tip",
-        "material_note": "steel, grade not documented: density 7850 kg/m^3, E 200 GPa nominal",
-        "attachment_note": (
-            "shaker and load cell may have stayed attached near the tip (unknown mass)"
-        ),
     }
     return Trial(
         times=t[mask],
@@ -554,10 +614,9 @@ def load_hrshm(
             "file": str(path),
             "sha256": digest,
             "unit": "g",
-            "format": "LabVIEW lvm text (23 header lines; time s, acceleration g)",
+            "format": fmt,
             "processing": [
-                f"time stamps regenerated as {t_first!r} + k * {float(dt)!r} s "
-                f"(max deviation from the file {dev:.1e} s)",
+                stamps,
                 f"baseline {baseline_g!r} g (pre-impact mean) subtracted",
                 f"g -> m/s^2 (x {STANDARD_GRAVITY})",
                 f"window from first sample > impact peak {t_peak!r} s + {settle!r} s, "

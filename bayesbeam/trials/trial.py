@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.interpolate
 import scipy.signal
 
 from bayesbeam.physics.beam import QUANTITIES, Beam
@@ -67,7 +68,45 @@ UNIFORM_RTOL = 1e-3
 #: transition band, neither passed nor stopped reliably.
 BANDWIDTH_PER_RATE = 1 / 2.56
 
+#: Stop-band attenuation of the decimation filter, dB (:func:`anti_alias_taps`).
+ANTI_ALIAS_DB = 100.0
+
 _INITIAL_KEYS = {"tip_deflection": "m", "tip_impulse": "N s", "note": None}
+
+#: Keys of ``[analysis]`` (choices of :mod:`bayesbeam.trials.preprocess` a trial file may
+#: fix) and the type each takes: ``start``/``end`` in s on the trial's time axis,
+#: ``rate`` in Hz, ``max_samples`` a count, ``initial`` 'release' | 'impulse' |
+#: 'modes:K', ``offset`` 'fit' | 'none', ``auto`` false to switch the automatic choices off.
+ANALYSIS_KEYS: dict[str, tuple[type, ...]] = {
+    "start": (int, float), "end": (int, float), "rate": (int, float),
+    "max_samples": (int,), "initial": (str,), "offset": (str,), "auto": (bool,),
+}
+
+
+def anti_alias_taps(q: int) -> np.ndarray:
+    """Zero-phase FIR low-pass for decimation by ``q`` (Kaiser window, Kaiser 1974).
+
+    Pass band up to the new rate's band (:data:`BANDWIDTH_PER_RATE` of the new rate:
+    ripple ``10^(-ANTI_ALIAS_DB/20)``), stop band from the new Nyquist frequency with
+    :data:`ANTI_ALIAS_DB` attenuation, so that what folds into the new band is
+    1e-5 of what lies above it. (scipy.signal.decimate's default FIR, a Hamming window
+    of 20 q + 1 taps, stops only ~50 dB: an impact record's higher modes, tens of
+    m/s^2, would fold back at ~0.1 m/s^2, far above an accelerometer's noise.)
+
+    Parameters
+    ----------
+    q : int
+        Decimation factor >= 2.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Taps (odd n, symmetric, unit DC gain), at the input rate.
+    """
+    edge = 2 * BANDWIDTH_PER_RATE / q  # pass-band edge, in units of the input Nyquist
+    numtaps, beta = scipy.signal.kaiserord(ANTI_ALIAS_DB, 1.0 / q - edge)
+    numtaps |= 1
+    return scipy.signal.firwin(numtaps, 0.5 * (edge + 1.0 / q), window=("kaiser", beta))
 
 
 class TrialError(ValueError):
@@ -169,6 +208,24 @@ def _check_initial(initial: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _check_analysis(analysis: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(analysis)
+    unknown = sorted(set(out) - set(ANALYSIS_KEYS))
+    if unknown:
+        raise TrialError(f"unknown [analysis] keys {unknown}; allowed: {list(ANALYSIS_KEYS)}")
+    for key, types in ANALYSIS_KEYS.items():
+        v = out.get(key)
+        if v is None:
+            continue
+        ok = isinstance(v, types) and (bool not in types) == (not isinstance(v, bool))
+        if ok and isinstance(v, float):
+            ok = math.isfinite(v)
+        if not ok:
+            kind = " or ".join(t.__name__ for t in types)
+            raise TrialError(f"[analysis] {key} must be a {kind}, got {v!r} (see data/README.md)")
+    return out
+
+
 def _content_sha256(times: np.ndarray, values: np.ndarray) -> str:
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(times, dtype="<f8").tobytes())
@@ -206,6 +263,10 @@ class Trial:
     initial : dict
         What is known of the initial condition: ``tip_deflection`` (m),
         ``tip_impulse`` (N s), ``note`` (str).
+    analysis : dict
+        Choices of the analysis fixed by the trial (``[analysis]``, keys
+        :data:`ANALYSIS_KEYS`); what is not given is chosen by
+        :func:`bayesbeam.trials.preprocess.plan`.
     meta : dict
         Free-form metadata (TOML-serialisable values).
     bandwidth : float or None
@@ -228,6 +289,7 @@ class Trial:
     initial: dict[str, Any] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
     bandwidth: float | None = None
+    analysis: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         t = _as_series(self.times, "times")
@@ -274,6 +336,7 @@ class Trial:
         object.__setattr__(self, "t0", float(t0))
         object.__setattr__(self, "source", source)
         object.__setattr__(self, "initial", _check_initial(self.initial))
+        object.__setattr__(self, "analysis", _check_analysis(self.analysis))
         object.__setattr__(self, "meta", dict(self.meta))
         if self.bandwidth is not None:
             bw = self.bandwidth
@@ -372,10 +435,10 @@ class Trial:
     def decimate(self, factor: int) -> Trial:
         """Low-pass filter and keep every ``factor``-th sample (uniform sampling only).
 
-        Uses :func:`scipy.signal.decimate` with its zero-phase FIR filter (Hamming
-        window, 20·factor + 1 taps, cutoff at the new Nyquist frequency). Output
-        samples whose filter support would reach past either end of the data (the
-        first and last ~10) are dropped, because the filter pads with zeros there;
+        Uses the zero-phase Kaiser FIR of :func:`anti_alias_taps` (pass band to the
+        new rate / 2.56, 100 dB from the new Nyquist frequency). Output samples whose
+        filter support would reach past either end of the data (``half`` input samples,
+        ``len(anti_alias_taps(q)) // 2``: 59 for q = 2, 235 for q = 8) are dropped;
         :attr:`t0` is kept, so the initial condition still applies at the same
         instant. Keep the signal's content below about 0.8 of the new Nyquist
         frequency (the filter's transition band).
@@ -410,8 +473,10 @@ class Trial:
         return self._decimated(self.times, self.values, q, f"decimate {q} (FIR, zero phase)")
 
     def _decimated(self, t: np.ndarray, y: np.ndarray, q: int, step: str) -> Trial:
-        half = 10 * q  # scipy.signal.decimate's FIR half length for ftype='fir'
-        yd = scipy.signal.decimate(y, q, ftype="fir", zero_phase=True)
+        taps = anti_alias_taps(q)
+        half = taps.size // 2
+        # Zero phase: tap `half` sits on the output sample (odd, symmetric filter).
+        yd = scipy.signal.fftconvolve(y, taps)[half : half + y.size][::q]
         k = np.arange(yd.size)
         # Keep outputs whose filter support [k q - half, k q + half] lies inside the data.
         keep = (k * q - half >= 0) & (k * q + half <= t.size - 1)
@@ -426,28 +491,36 @@ class Trial:
         band = min(self.sensor_band, BANDWIDTH_PER_RATE / (q * float(np.median(np.diff(t)))))
         return dataclasses.replace(out, bandwidth=band)
 
-    def resample(self, dt: float) -> Trial:
+    def resample(self, dt: float, max_gap: float | None = None) -> Trial:
         """Resample onto a uniform grid of step ``dt`` (s) with an anti-alias filter.
 
         For non-uniform stamps (e.g. software-timed accelerometers): the signal is
-        linearly interpolated onto a uniform grid of step ``h = dt / q`` with
-        ``q = ceil(0.99 dt / median step)`` (so h is at most ~1 % coarser than the
-        native sampling),
-        then decimated by q as in :meth:`decimate`. Linear interpolation of a
-        component at frequency f has a relative amplitude error of at most
-        ``(2 pi f h_gap)^2 / 8`` across a gap ``h_gap``; the largest gap is recorded
-        in ``source['processing']``. :attr:`t0` is kept.
+        interpolated by a cubic spline (not-a-knot) onto a uniform grid of step
+        ``h = dt / q`` with ``q = ceil(0.99 dt / median step)`` (so h is at most ~1 %
+        coarser than the native sampling), then decimated by q as in :meth:`decimate`.
+        The spline errs by at most ``(5/384) (2 pi f h_s)^4`` of a component at
+        frequency f between stamps ``h_s`` apart (de Boor 2001, ch. V); linear
+        interpolation's ``(2 pi f h_s)^2 / 8`` was 100 times larger on jittered
+        stamps with modes at a quarter of the native rate, and its error is broadband,
+        so the filter cannot remove it. The largest gap is recorded in
+        ``source['processing']``; ``max_gap`` drops the outputs it touches.
+        :attr:`t0` is kept.
 
         Parameters
         ----------
         dt : float
             New sampling step in s, at least the median native step.
+        max_gap : float, optional
+            Native steps longer than this (s) are gaps that interpolation cannot bridge:
+            every output sample whose interpolation or anti-alias filter reaches into
+            one is dropped (the output is then a uniform grid with holes, which the
+            forward model simulates on the full grid). None keeps every sample.
 
         Returns
         -------
         Trial
-            Uniformly sampled at ``dt``, starting at ``times[0] + k0 dt`` (the first
-            filter-edge samples are dropped).
+            Sampled at ``dt`` (uniform unless ``max_gap`` dropped samples), starting at
+            ``times[0] + k0 dt`` (the first filter-edge samples are dropped).
 
         Raises
         ------
@@ -469,11 +542,34 @@ class Trial:
         n = int(np.floor(self.duration / h * (1 + 1e-12))) + 1
         grid = self.times[0] + h * np.arange(n)
         grid = grid[grid <= self.times[-1]]
-        fine = np.interp(grid, self.times, self.values)
+        fine = scipy.interpolate.CubicSpline(self.times, self.values)(grid)
         step = (
-            f"resample dt={dt!r} s (linear interpolation to {h!r} s, largest native gap "
+            f"resample dt={dt!r} s (cubic-spline interpolation to {h!r} s, largest native gap "
             f"{float(steps.max())!r} s, then FIR decimation by {q})"
         )
-        if q == 1:
-            return self._derived(grid, fine, step)
-        return self._decimated(grid, fine, q, step)
+        out = self._derived(grid, fine, step) if q == 1 else self._decimated(grid, fine, q, step)
+        if max_gap is None:
+            return out
+        if isinstance(max_gap, bool) or not isinstance(max_gap, (int, float)) or not max_gap > 0:
+            raise TrialError(f"max_gap must be a positive number of s, got {max_gap!r}")
+        gaps = np.flatnonzero(steps > max_gap)
+        if gaps.size == 0:
+            return out
+        # Output k depends on the data within +- reach of it: the decimation FIR's half
+        # length (see _decimated) plus the spline's, whose error from a gap decays by
+        # 2 - sqrt(3) = 0.27 per knot (de Boor 2001, ch. V): 1e-6 after 10 stamps.
+        reach = h * (0 if q == 1 else anti_alias_taps(q).size // 2) + 10 * med
+        a, b = self.times[gaps], self.times[gaps + 1]
+        tau = out.times
+        touched = np.searchsorted(a, tau + reach) - np.searchsorted(b, tau - reach, side="right")
+        keep = touched <= 0
+        if np.count_nonzero(keep) < 2:
+            raise TrialError(
+                f"every resampled sample lies within reach of a gap longer than max_gap = "
+                f"{max_gap} s; raise max_gap or resample more coarsely"
+            )
+        return out._derived(
+            out.times[keep], out.values[keep],
+            f"dropped {int(keep.size - np.count_nonzero(keep))} resampled samples within "
+            f"{reach!r} s of {gaps.size} native gaps longer than {max_gap!r} s",
+        )

@@ -215,7 +215,7 @@ def test_smoke_offset_named_and_cli(tmp_path):
     args = parser.parse_args(["diagnose", str(path), "--baseline", "viscous", "-o",
                               str(tmp_path / "out"), "--json", "--max-rounds", "1",
                               "--candidates", "sensor_offset", "--elements", "4", "--fixed-mesh",
-                              "--max-steps", "100", "--target-ess", "50"])
+                              "--max-steps", "100", "--target-ess", "50", "--as-is"])
     assert args.func(args) == 0
     out = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert out["named_causes"] == ["sensor_offset"]

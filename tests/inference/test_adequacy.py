@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayesbeam.inference.adequacy import LIMITS, assess
+from bayesbeam.inference.adequacy import LIMITS, assess, in_band
 from bayesbeam.inference.fit import fit
 from bayesbeam.inference.problem import Problem
 
@@ -92,3 +92,30 @@ def test_fit_that_leaves_out_a_mass_says_it_is_not_adequate():
     assert "NOT adequate" in str(res)
     js = res.to_json_dict()
     assert js["adequacy"]["ok"] is False and js["mesh"]["n_elements"] >= 16
+
+
+def test_in_band_whitens_decimated_noise_and_keeps_a_line():
+    # White noise decimated by 8 with the anti-alias filter: white inside the band
+    # (rate / 2.56), falling off above it, so the whole series fails Ljung-Box (lag-1
+    # correlation ~ sin(0.89 pi) / (0.89 pi) = 0.12) while its in-band part passes.
+    from bayesbeam.physics.beam import Beam
+    from bayesbeam.stats.whiteness import ljung_box
+    from bayesbeam.trials.trial import Trial
+
+    rng = np.random.default_rng(5)
+    t = np.arange(48_000) * 1e-3
+    beam = Beam.rectangular(0.3, 0.05, 2e-3, 0.08, E=7e10)
+    d = Trial(times=t, values=rng.standard_normal(t.size), quantity="acceleration",
+              beam=beam).decimate(8)
+    z = d.values / d.values.std()
+    assert ljung_box(z, 20)[1] < 1e-6
+    zb, dtb = in_band(z, d.dt, d.sensor_band)
+    assert ljung_box(zb, 20)[1] > LIMITS["p_min"]
+    assert 1 / (2 * dtb) == pytest.approx(d.sensor_band, rel=0.01)
+    # A sinusoid inside the band keeps its amplitude (Fourier frequency: no leakage).
+    f0 = 40 / (z.size * d.dt)
+    line = 0.3 * np.cos(2 * np.pi * f0 * (d.times - d.times[0]))
+    lb, _ = in_band(line, d.dt, d.sensor_band)
+    assert np.max(np.abs(lb)) == pytest.approx(0.3, rel=1e-6)
+    # A band that reaches the Nyquist frequency leaves the series as it is.
+    assert in_band(z, d.dt, 0.5 / d.dt)[0] is z

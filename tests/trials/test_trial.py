@@ -10,7 +10,7 @@ import scipy.signal
 
 from bayesbeam.physics.beam import Beam, Segment
 from bayesbeam.trials.io import _toml_dumps, read_trial, write_trial
-from bayesbeam.trials.trial import STANDARD_GRAVITY, Trial, TrialError
+from bayesbeam.trials.trial import STANDARD_GRAVITY, Trial, TrialError, anti_alias_taps
 
 
 def _beam(**kw):
@@ -275,10 +275,24 @@ def test_window_keeps_t0():
 
 
 def _fir_gain(q, freqs, fs):
-    """|H| of scipy.signal.decimate's documented default FIR (Hamming, 20 q + 1 taps)."""
-    b = scipy.signal.firwin(20 * q + 1, 1.0 / q, window="hamming")
+    """|H| and l1 norm of the decimation filter (anti_alias_taps), from its taps."""
+    b = anti_alias_taps(q)
     _, h = scipy.signal.freqz(b, worN=2 * np.pi * np.asarray(freqs) / fs)
     return np.abs(h), np.sum(np.abs(b))
+
+
+def test_anti_alias_filter_meets_its_specification():
+    # Kaiser's design rule: pass-band ripple and stop-band gain both 1e-5 (100 dB), pass
+    # band to 1/2.56 of the new rate, stop band from its Nyquist frequency.
+    for q in (2, 5, 8):
+        fs = 1.0
+        f = np.linspace(0, fs / 2, 20001)
+        gain, _ = _fir_gain(q, f, fs)
+        passband = f <= fs / q / 2.56
+        stopband = f >= fs / q / 2
+        assert np.max(np.abs(gain[passband] - 1)) < 2e-5
+        assert np.max(gain[stopband]) < 2e-5
+        assert anti_alias_taps(q).size % 2 == 1
 
 
 def _two_tone(t):
@@ -293,7 +307,8 @@ def test_decimate_removes_alias_and_keeps_passband():
     tr = Trial(t, keep + alias, "velocity", _beam())
     d = tr.decimate(4)
     assert d.is_uniform and d.dt == pytest.approx(0.004, rel=1e-9)
-    assert d.t0 == 0.0 and d.times[0] == pytest.approx(0.04)  # 10 edge outputs dropped
+    half = anti_alias_taps(4).size // 2  # outputs whose support reaches t < 0 dropped
+    assert d.t0 == 0.0 and d.times[0] == pytest.approx(np.ceil(half / 4) * 0.004)
     assert set(d.times).issubset(set(t))
     # Bound from the filter's own response: passband gain error at 20 Hz plus the 700 Hz
     # amplitude times its stopband gain (zero-phase: no delay to account for).

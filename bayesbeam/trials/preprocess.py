@@ -1,0 +1,494 @@
+"""From a raw record to what a fit needs: the analysis start, end, rate, modes and offset.
+
+A record as it comes off the acquisition holds more than the free vibration that the
+model describes: a quiet stretch before the release or impact, the contact itself, tens
+of thousands of non-uniform stamps at a rate far above the modes that carry the motion,
+gaps in the stamps, a constant offset and, when the motion has decayed, seconds of
+noise. :func:`plan` chooses what a fit uses and says why (a :class:`Preprocessing`
+record, written to every JSON as ``preprocessing``); :func:`apply` does it. Every choice
+can be fixed instead, by the trial file's ``[analysis]`` table
+(:data:`~bayesbeam.trials.trial.ANALYSIS_KEYS`) or a command-line option.
+
+The choices
+-----------
+1. **Start.** A trial that declares its initial state (``[initial] tip_deflection`` or
+   ``tip_impulse``) starts where the trial says (its first sample, the state at ``t0``).
+   Otherwise the release or impact is the sample farthest from the record's median
+   (an acceleration record jumps to its largest value when the hand lets go or the
+   hammer strikes; a displacement record starts its decay from its largest value) and
+   the analysis starts :data:`SETTLE_S` after it: the contact of a hand or hammer lasts
+   milliseconds to tens of milliseconds, and the sensor's anti-alias filter rings for
+   tens of samples after the step (ISO 5348; Ewins, *Modal Testing*, 2000, §3.9).
+2. **End.** The record's end, unless the motion has decayed into the noise before it:
+   then the end of the last block (:data:`BLOCK_PERIODS` periods of mode 1, at least
+   0.5 s) whose RMS about its mean exceeds :data:`END_SNR` noise standard deviations
+   (the noise from :func:`bayesbeam.trials.noise.noise_floor` on the record's last
+   block). Samples of pure noise tell the fit nothing about the beam.
+3. **Modes and rate.** Mode 1 is the largest spectral peak within a factor 2 of the
+   beam's nominal first frequency; mode k is sought at ``f1 r_k`` (``r_k`` the nominal
+   beam's frequency ratios, which do not depend on E) within ±20 % and counts as seen
+   when the largest ordinate there of the analysis span's power spectrum (Hann window)
+   exceeds :data:`~bayesbeam.trials.noise.PEAK_FACTOR` times the median ordinate within
+   a factor 2 in frequency (the local floor: noise, leakage, the release's broadband
+   content). The analysis
+   band is ``1.25 ×`` the highest seen mode that fits the sample budget
+   (:data:`MAX_SAMPLES` over the analysis span) and the record's own band, the rate
+   ``2.56 ×`` the band (the anti-alias convention of
+   :data:`~bayesbeam.trials.trial.BANDWIDTH_PER_RATE`). Modes above the band are
+   removed from data (the anti-alias filter) and model (the sensor band) alike, so
+   dropping one costs information, never correctness. Uniform stamps are decimated;
+   non-uniform ones resampled, dropping every output that the interpolation or filter
+   would take across a gap longer than :data:`MAX_GAP_STEPS` median steps (a linear
+   interpolation across a gap h errs by ``(2πfh)²/8`` of a component at f).
+   With the rate already within 10 % of the native one the raw stamps are kept.
+4. **Initial state.** The declared one (``release``, ``impulse``), else free modal
+   amplitudes of every model mode in the band (``modes:K``) at the first analysis
+   sample (``t0`` is moved there).
+5. **Offset.** A record without a declared initial state is a raw record: its constant
+   offset (sensor zero, gravity on a tilted sensor) is fitted as a parameter
+   (``offset``, the ``sensor_offset`` term). A trial with a declared state is taken as
+   given (add ``sensor_offset`` to the model to fit one).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+from bayesbeam.physics.fem import assemble
+from bayesbeam.trials.modal_id import periodogram
+from bayesbeam.trials.noise import PEAK_FACTOR, noise_floor
+from bayesbeam.trials.trial import BANDWIDTH_PER_RATE, Trial, TrialError
+
+__all__ = [
+    "END_SNR",
+    "MAX_SAMPLES",
+    "Preprocessing",
+    "PreprocessError",
+    "SETTLE_S",
+    "apply",
+    "plan",
+    "prepare",
+]
+
+#: Time from the release or impact to the analysis start, s (see the module docstring).
+SETTLE_S = 0.1
+#: Most samples the analysis keeps by default (sets the rate on long records): a
+#: viscous+kv posterior on 16k samples takes about 2 minutes on two cores.
+MAX_SAMPLES = 16_384
+#: A block counts as motion while its RMS exceeds this many noise standard deviations.
+END_SNR = 3.0
+#: Length of the blocks of the end test, in periods of mode 1.
+BLOCK_PERIODS = 8.0
+#: Native steps longer than this many median steps are gaps (see :meth:`Trial.resample`).
+MAX_GAP_STEPS = 4.0
+#: Modes sought beyond the first (the nominal beam's ratios).
+MAX_MODES = 8
+#: Search half-width around f1 r_k, relative.
+MODE_WINDOW = 0.2
+#: The band edge above the highest kept mode (the anti-alias filter's transition).
+BAND_MARGIN = 1.25
+
+
+class PreprocessError(ValueError):
+    """The record cannot be prepared as asked; the message says what to change."""
+
+
+@dataclass(frozen=True)
+class Preprocessing:
+    """What :func:`plan` chose for a record, and why (all times in s on the trial's axis).
+
+    Attributes
+    ----------
+    start, end : float
+        Analysis span in s.
+    start_how, end_how : str
+        How each was chosen.
+    release : float or None
+        Time of the detected release or impact, s (None: declared or given).
+    rate : float or None
+        Analysis sampling rate in Hz; None keeps the record's own stamps.
+    band : float
+        Analysis band in Hz (the sensor band the model applies).
+    rate_how : str
+        How the rate was chosen.
+    f1 : float
+        Mode-1 frequency seen in the record, Hz.
+    modes_seen : tuple of float
+        Frequencies (Hz) of the bending modes seen in the record, mode 1 first.
+    mode_strength : tuple of float
+        Their spectral peak over the median power within a factor 2 in frequency.
+    modes_dropped : tuple of float
+        Seen modes above the analysis band (removed from data and model), Hz.
+    initial : str
+        Initial condition of the fit ('release', 'impulse' or 'modes:K').
+    initial_how : str
+        Why.
+    offset : str
+        'fit' (a parameter ``offset``) or 'none'.
+    offset_how : str
+        Why.
+    n_samples_in, n_samples : int
+        Samples of the record and of the analysis.
+    max_samples : int
+        The sample budget used.
+    given : tuple of str
+        The choices fixed by the trial file or an option (not chosen here).
+    loader : tuple of str
+        What was done to the record before (``trial.source['processing']``).
+    """
+
+    start: float
+    end: float
+    start_how: str
+    end_how: str
+    release: float | None
+    rate: float | None
+    band: float
+    rate_how: str
+    f1: float
+    modes_seen: tuple[float, ...]
+    mode_strength: tuple[float, ...]
+    modes_dropped: tuple[float, ...]
+    initial: str
+    initial_how: str
+    offset: str
+    offset_how: str
+    n_samples_in: int
+    n_samples: int
+    max_samples: int
+    given: tuple[str, ...]
+    loader: tuple[str, ...]
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """Return the record as JSON-ready dict (the ``preprocessing`` key of the outputs)."""
+        out = dataclasses.asdict(self)
+        for k in ("modes_seen", "mode_strength", "modes_dropped", "given", "loader"):
+            out[k] = list(out[k])
+        out["units"] = "s for times, Hz for rate, band and frequencies"
+        return out
+
+    def model_name(self, name: str) -> str:
+        """Return model ``name`` with ``+sensor_offset`` when the offset is fitted.
+
+        Parameters
+        ----------
+        name : str
+            A model name, e.g. 'viscous+kv'.
+
+        Returns
+        -------
+        str
+        """
+        if self.offset == "fit" and "sensor_offset" not in name.split("+"):
+            return f"{name}+sensor_offset"
+        return name
+
+    def lines(self) -> list[str]:
+        """Return the choices as short lines for a person (printed on stderr)."""
+        rate = "the record's own stamps" if self.rate is None else f"{self.rate:.1f} Hz"
+        seen = ", ".join(f"{f:.1f}" for f in self.modes_seen) or "none"
+        out = [
+            f"analysis span {self.start:.4f}-{self.end:.4f} s ({self.start_how}; "
+            f"end: {self.end_how})",
+            f"rate {rate}, band {self.band:.1f} Hz ({self.rate_how}); modes seen at "
+            f"{seen} Hz; {self.n_samples} of {self.n_samples_in} samples",
+            f"initial condition {self.initial} ({self.initial_how})",
+            f"offset: {self.offset} ({self.offset_how})",
+        ]
+        if self.modes_dropped:
+            out.append("modes above the band, left out of data and model: "
+                       + ", ".join(f"{f:.1f} Hz" for f in self.modes_dropped))
+        return out
+
+
+# ------------------------------------------------------------------------------ helpers
+def _declared_initial(trial: Trial) -> str | None:
+    if "tip_deflection" in trial.initial:
+        return "release"
+    if "tip_impulse" in trial.initial:
+        return "impulse"
+    return None
+
+
+def _ratios(trial: Trial) -> np.ndarray:
+    """Nominal ratios f_k / f_1 of the trial's beam (rigid clamp; E cancels)."""
+    fe = assemble(trial.beam, max(16, 2 * MAX_MODES), root_dof=False)
+    lam = sla.eigh(fe.K, fe.M, eigvals_only=True, subset_by_index=[0, MAX_MODES - 1])
+    return np.sqrt(lam / lam[0])
+
+
+def _nominal_f1(trial: Trial) -> float | None:
+    if trial.beam.E is None:
+        return None
+    fe = assemble(trial.beam, 16, root_dof=False)
+    lam = sla.eigh(fe.K, fe.M, eigvals_only=True, subset_by_index=[0, 0])
+    return float(np.sqrt(lam[0] * trial.beam.E) / (2 * np.pi))
+
+
+def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
+                ) -> tuple[float, list[float], list[float]]:
+    """Mode-1 frequency, the bending modes seen (Hz) and their peak-to-floor power ratios."""
+    f, amp = periodogram(t, y)
+    power = amp**2
+    f_lo = 3.0 / float(t[-1] - t[0])
+    nominal = _nominal_f1(trial)
+    sel = (f > f_lo) & (f < band)
+    if nominal is not None:
+        sel &= (f > 0.5 * nominal) & (f < 2.0 * nominal)
+    if not np.any(sel):
+        raise PreprocessError(
+            f"no spectrum to find mode 1 in (analysis {t[0]:.3f}-{t[-1]:.3f} s, band "
+            f"{band:.1f} Hz); give the analysis span with [analysis] start/end or --window"
+        )
+    ratios = _ratios(trial)
+    f1 = float(f[sel][np.argmax(power[sel])])
+    seen, strength = [], []
+    for k in range(ratios.size):
+        fk = f1 * ratios[k]
+        if fk * (1 - MODE_WINDOW) >= band:
+            break
+        win = (f > fk * (1 - MODE_WINDOW)) & (f < min(band, fk * (1 + MODE_WINDOW)))
+        local = (f > fk / 2) & (f < min(band, 2 * fk))
+        if not np.any(win):
+            break
+        i = int(np.argmax(np.where(win, power, -np.inf)))
+        ratio = float(power[i] / np.median(power[local]))
+        if k == 0 or ratio > PEAK_FACTOR:
+            seen.append(float(f[i]))
+            strength.append(ratio)
+    return f1, seen, strength
+
+
+def _end_of_motion(t: np.ndarray, y: np.ndarray, f1: float) -> tuple[float, str]:
+    """End of the last block whose RMS exceeds END_SNR noise sd (see module doc)."""
+    block = max(0.5, BLOCK_PERIODS / f1)
+    if t[-1] - t[0] < 3 * block:
+        return float(t[-1]), "record end (too short to test for decay)"
+    last = t >= t[-1] - block
+    if np.count_nonzero(last) < 64:
+        return float(t[-1]), "record end (too few samples to test for decay)"
+    sd = noise_floor(t[last], y[last], max_modes=4).sd
+    edges = np.arange(t[0], t[-1], block)
+    idx = np.searchsorted(t, edges)
+    idx = np.append(idx, t.size)
+    rms = np.array([np.std(y[a:b]) if b - a > 1 else 0.0
+                    for a, b in zip(idx[:-1], idx[1:], strict=True)])
+    loud = np.flatnonzero(rms > END_SNR * sd)
+    if loud.size == 0 or loud[-1] >= rms.size - 2:
+        return float(t[-1]), f"record end (motion above {END_SNR:g} noise sd to the end)"
+    end = float(t[min(idx[loud[-1] + 1], t.size - 1)])
+    return end, (f"motion below {END_SNR:g} noise sd (noise sd {sd:.3g} from the last "
+                 f"{block:.2f} s) after {end:.3f} s")
+
+
+def _option(trial: Trial, given: dict[str, Any], key: str) -> Any:
+    """Return the choice fixed by an option (``given``) or ``[analysis]``, else None."""
+    if given.get(key) is not None:
+        return given[key]
+    return trial.analysis.get(key)
+
+
+# ------------------------------------------------------------------------------ the plan
+def plan(trial: Trial, **given: Any) -> Preprocessing:
+    """Choose the analysis of a record (see the module docstring for each rule).
+
+    Parameters
+    ----------
+    trial : Trial
+        The record as read.
+    **given
+        Choices fixed by the caller (override the trial's ``[analysis]``, which
+        overrides the rules): ``start``, ``end`` (s), ``rate`` (Hz), ``max_samples``,
+        ``initial`` ('release' | 'impulse' | 'modes:K'), ``offset`` ('fit' | 'none'),
+        ``auto`` (False: keep the record as it is, the trial's declared initial
+        condition or 'release', no offset).
+
+    Returns
+    -------
+    Preprocessing
+
+    Raises
+    ------
+    PreprocessError
+        For an unknown or out-of-range choice, or a span without samples.
+    """
+    unknown = sorted(set(given) - {"start", "end", "rate", "max_samples", "initial",
+                                   "offset", "auto"})
+    if unknown:
+        raise PreprocessError(f"unknown preprocessing choices {unknown}")
+    t = np.asarray(trial.times, dtype=float)
+    y = np.asarray(trial.values, dtype=float)
+    fixed = tuple(k for k in given if given[k] is not None) + tuple(
+        k for k in trial.analysis if given.get(k) is None)
+    declared = _declared_initial(trial)
+    auto = _option(trial, given, "auto")
+    if auto is None:  # a trial that declares its initial state is taken as given
+        auto = declared is None
+    off = ("trial with a declared initial state, taken as given" if declared and
+           _option(trial, given, "auto") is None else "automatic choices off")
+    budget = _option(trial, given, "max_samples") or MAX_SAMPLES
+    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 256:
+        raise PreprocessError(f"max_samples must be an integer >= 256, got {budget!r}")
+    native_band = trial.sensor_band
+
+    # 1. start
+    release = None
+    start = _option(trial, given, "start")
+    if start is not None:
+        start_how = "given"
+    elif not auto:
+        start, start_how = float(t[0]), f"the trial's first sample ({off})"
+    else:
+        i = int(np.argmax(np.abs(y - np.median(y))))
+        release = float(t[i])
+        start = release + SETTLE_S
+        start_how = (f"{SETTLE_S:g} s after the release/impact at {release:.4f} s "
+                     "(largest |signal - median|)")
+    start = float(start)
+    # 2. end (needs f1: found on the span from the start)
+    end = _option(trial, given, "end")
+    span = t >= start if end is None else (t >= start) & (t <= float(end))
+    if np.count_nonzero(span) < 64:
+        raise PreprocessError(
+            f"the analysis span from {start:.4f} s holds {np.count_nonzero(span)} samples "
+            f"(record {t[0]:.4f}-{t[-1]:.4f} s); choose start/end inside the record"
+        )
+    f1, seen, strength = _seen_modes(trial, t[span], y[span], native_band)
+    if end is not None:
+        end, end_how = float(end), "given"
+    elif not auto:
+        end, end_how = float(t[-1]), f"record end ({off})"
+    else:
+        end, end_how = _end_of_motion(t[span], y[span], f1)
+    if not end > start:
+        raise PreprocessError(f"analysis end {end} s is not after its start {start} s")
+    n_span = int(np.count_nonzero((t >= start) & (t <= end)))
+    median_step = float(np.median(np.diff(t)))
+
+    # 3. rate and band
+    rate = _option(trial, given, "rate")
+    cap = min(native_band, BANDWIDTH_PER_RATE * budget / (end - start))
+    if rate is not None:
+        rate = float(rate)
+        if not rate > 0:
+            raise PreprocessError(f"rate must be a positive number of Hz, got {rate!r}")
+        band = min(native_band, BANDWIDTH_PER_RATE * rate)
+        rate_how = "given"
+    elif not auto:
+        band, rate_how = native_band, f"the record's own ({off})"
+    else:
+        kept = [f for f in seen if BAND_MARGIN * f <= cap] or [seen[0]]
+        band = min(native_band, BAND_MARGIN * max(kept))
+        rate = band / BANDWIDTH_PER_RATE
+        if trial.is_uniform:  # an integer decimation factor: no interpolation
+            rate = 1.0 / (trial.dt * max(1, math.floor(1.0 / (rate * trial.dt))))
+        rate_how = (f"{BAND_MARGIN:g} x the highest seen mode within the budget of "
+                    f"{budget} samples and the record's band {native_band:.1f} Hz")
+    if rate is not None and rate_how != "given" and rate >= 0.9 / median_step:
+        rate, band = None, native_band
+        rate_how += "; within 10 % of the native rate: raw stamps kept"
+    dropped = tuple(f for f in seen if f > band)
+    n_out = n_span if rate is None else int((end - start) * rate) + 1
+
+    # 4. initial condition
+    initial = _option(trial, given, "initial")
+    ratios = _ratios(trial)
+    n_modes = max(1, int(np.count_nonzero(f1 * ratios < band)))
+    if initial is not None:
+        initial_how = "given"
+    elif declared is not None:
+        initial, initial_how = declared, "declared in the trial's [initial]"
+    elif not auto:
+        initial, initial_how = "release", f"the default ({off})"
+    else:
+        initial = f"modes:{n_modes}"
+        initial_how = (f"no declared initial state: free amplitudes of the {n_modes} model "
+                       f"mode(s) below the band at the first analysis sample")
+    # 5. offset
+    offset = _option(trial, given, "offset")
+    if offset is not None:
+        if offset not in ("fit", "none"):
+            raise PreprocessError(f"offset must be 'fit' or 'none', got {offset!r}")
+        offset_how = "given"
+    elif auto:
+        offset = "fit"
+        offset_how = "raw record: the constant offset is a parameter ('offset')"
+    else:
+        offset, offset_how = "none", off
+    return Preprocessing(
+        start=start, end=float(end), start_how=start_how, end_how=end_how, release=release,
+        rate=rate, band=float(band), rate_how=rate_how, f1=f1, modes_seen=tuple(seen),
+        mode_strength=tuple(strength),
+        modes_dropped=dropped, initial=str(initial), initial_how=initial_how,
+        offset=str(offset), offset_how=offset_how, n_samples_in=int(t.size),
+        n_samples=n_out, max_samples=int(budget), given=fixed,
+        loader=tuple(str(s) for s in trial.source.get("processing", [])),
+    )
+
+
+def apply(trial: Trial, pre: Preprocessing) -> Trial:
+    """Cut, resample and re-time a record as ``pre`` says.
+
+    Parameters
+    ----------
+    trial : Trial
+        The record as read (the one :func:`plan` saw).
+    pre : Preprocessing
+
+    Returns
+    -------
+    Trial
+        The analysis record; with free modal amplitudes ``t0`` is its first sample.
+
+    Raises
+    ------
+    PreprocessError
+        When the span or the rate leaves too few samples.
+    """
+    t = np.asarray(trial.times)
+    out = trial
+    try:
+        if pre.start > t[0] or pre.end < t[-1]:
+            out = out.window(pre.start, pre.end)
+        if pre.rate is not None:
+            q = 1.0 / (pre.rate * out.dt)
+            if out.is_uniform and abs(q - round(q)) <= 1e-6 * q:
+                out = out.decimate(max(1, round(q)))
+            else:
+                med = float(np.median(np.diff(out.times)))
+                out = out.resample(1.0 / pre.rate, max_gap=MAX_GAP_STEPS * med)
+    except TrialError as err:
+        raise PreprocessError(f"cannot prepare {trial.name!r} as planned: {err}") from None
+    out = dataclasses.replace(out, bandwidth=min(out.sensor_band, pre.band))
+    if pre.initial.startswith("modes:") and out.t0 < out.times[0]:
+        t0 = float(out.times[0])
+        source = dict(out.source)
+        source["processing"] = [*source.get("processing", []),
+                                f"t0 moved to the analysis start {t0!r} s (free modal state)"]
+        out = dataclasses.replace(out, t0=t0, source=source)
+    return out
+
+
+def prepare(trial: Trial, **given: Any) -> tuple[Trial, Preprocessing]:
+    """Plan and apply in one call: the analysis record and the record of the choices.
+
+    Parameters
+    ----------
+    trial : Trial
+    **given
+        As :func:`plan`.
+
+    Returns
+    -------
+    tuple of (Trial, Preprocessing)
+        ``Preprocessing.n_samples`` is the count of the prepared record.
+    """
+    pre = plan(trial, **given)
+    out = apply(trial, pre)
+    return out, dataclasses.replace(pre, n_samples=int(out.times.size))
