@@ -57,7 +57,8 @@ def register(subparsers: Any) -> None:
         help="name the cause of a model discrepancy from a catalogue and measure the gain",
         description=(
             "Fit the baseline, try every catalogue extension (kv, sh, tip_mass, added_mass, "
-            "root_spring, stiffness_gradient, drag, friction, ar1_noise, sensor_offset), name "
+            "root_spring, stiffness_gradient, drag, friction, amplitude_stiffness, ar1_noise, "
+            "sensor_offset), name "
             "the one "
             "with the largest significant gain in log evidence (Δ log Z - 2 err > 3 nats), "
             "extend the model and repeat. Writes diagnosis.json, report.md and signature "
@@ -108,6 +109,26 @@ def _check(args: argparse.Namespace) -> list[str] | None:
     return cands
 
 
+def _predictions(trial: Any, d: Any, seed: int) -> dict[str, Any]:
+    """Posterior-median signal of the baseline and the final model (the sampled fits)."""
+    import numpy as np
+
+    from bayesbeam.inference.predictive import posterior_predictive
+    from bayesbeam.inference.problem import Problem
+
+    out = {}
+    rng = np.random.default_rng([seed, 2])
+    for name in dict.fromkeys((d.baseline, d.final_model)):
+        res = d.fits.get(name)
+        if res is None:
+            continue
+        problem = Problem(trial, name, res.priors, n_elements=int(res.settings["n_elements"]),
+                          initial=str(res.settings["initial"]))
+        _, y_model, _ = posterior_predictive(problem, res, 50, rng)
+        out[name] = np.median(y_model, axis=0)
+    return out
+
+
 def _say(line: str) -> None:
     """Progress and preprocessing lines go to stderr (stdout stays the report or JSON)."""
     print(line, file=sys.stderr, flush=True)
@@ -129,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.diagnosis.diagnose import CATALOGUE, diagnose
     from bayesbeam.diagnosis.signatures import plot_signatures
     from bayesbeam.physics.models import parse_model
+    from bayesbeam.report.amplitude_plots import write_model_overlays
     from bayesbeam.stats.priors import PriorSet
 
     cands = _check(args)
@@ -155,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
         if sig is not None:
             fig = plot_signatures(sig, title=f"{trial.name}: {sig.model} ({label})")
             fig.savefig(outdir / f"signatures_{label}.png", dpi=110)
+    write_model_overlays(trial, _predictions(trial, d, args.seed), outdir, say=_say)
     if args.json:
         print(text)
     else:

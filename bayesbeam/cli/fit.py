@@ -236,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.inference.predictive import posterior_predictive
     from bayesbeam.inference.problem import Problem, default_priors
     from bayesbeam.physics.models import parse_model
+    from bayesbeam.report.amplitude_plots import write_model_overlays
     from bayesbeam.report.plots import plot_fit, plot_residual_spectrum
     from bayesbeam.stats.priors import PriorSet
     from bayesbeam.stats.sampling import NotConvergedWarning
@@ -302,6 +303,7 @@ def run(args: argparse.Namespace) -> int:
     resid = np.asarray(trial.values) - np.median(y_model, axis=0)
     plot_residual_spectrum(trial, resid, outdir / "residual_spectrum.png",
                            mode_freqs_hz=_mode_freqs(problem, result))
+    write_model_overlays(trial, {model.name: np.median(y_model, axis=0)}, outdir, say=_say)
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["outdir"] = str(outdir)
 

@@ -162,17 +162,27 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.report.amplitude_plots import write_amplitude_figures
     from bayesbeam.trials.amplitude import amplitude_curves, tip_factor
     from bayesbeam.trials.io import read_trial
+    from bayesbeam.trials.preprocess import plan
 
     _check(args)
     trial = read_trial(args.trial)
-    if args.window is not None:
-        trial = trial.window(*args.window)
+    # The span is chosen as for a fit (a raw record: from just after the release or
+    # impact to the end of the motion); the estimator then works on the raw stamps, so
+    # the rate, initial-state and offset choices do not apply here.
+    given = {} if args.window is None else {"start": args.window[0], "end": args.window[1]}
+    pre = plan(trial, **given)
+    if pre.start > trial.times[0] or pre.end < trial.times[-1]:
+        trial = trial.window(pre.start, pre.end)
+    print(f"preprocessing: {pre.lines()[0]}", file=sys.stderr, flush=True)
     tic = time.perf_counter()
     with one_blas_thread():
         curves = amplitude_curves(trial.times, trial.values, f1=args.f1, n_modes=args.modes,
                                   periods=args.periods, quantity=trial.quantity,
                                   tip_factor=tip_factor(trial.beam), progress=_Progress())
+    span = {k: v for k, v in pre.to_json_dict().items()
+            if k in ("start", "end", "start_how", "end_how", "release", "given", "loader")}
     record = {"trial": trial.name, "n_samples": int(trial.times.size),
+              "preprocessing": {**span, "note": "raw stamps in the span (no resampling)"},
               **curves.to_json_dict(),
               "wall_time_s": round(time.perf_counter() - tic, 3)}
     outdir = Path(args.outdir)

@@ -16,6 +16,8 @@ cause                     model extension (parameters)
 ``drag``                  quadratic air drag (``drag``, kg/m²): damping grows with amplitude
 ``friction``              dry clamp friction on mode 1 (``friction``, N): damping grows as
                           the amplitude falls
+``amplitude_stiffness``   f1 moving with the mode-1 tip amplitude (``f1_slope``, Hz/m;
+                          reported in Hz per mm; negative: softening)
 ``ar1_noise``             AR(1) correlated residuals (``rho``)
 ``sensor_offset``         constant offset of the signal (``offset``)
 ========================  ===========================================================
@@ -64,7 +66,8 @@ Procedure of one round (current model M)
 4. **Tie to a signature**: the residual signature of M that points the same way is
    reported (:func:`signature_support`): f2/f1 shift for the structural causes,
    mode-1 decay rate vs amplitude for ``drag`` (faster at large amplitude) and
-   ``friction`` (faster at small amplitude), Ljung–Box whiteness and lag-1
+   ``friction`` (faster at small amplitude), f1 against amplitude beyond the model's for
+   ``amplitude_stiffness``, Ljung–Box whiteness and lag-1
    autocorrelation for ``ar1_noise``, mean / low-frequency residual for
    ``sensor_offset``, frequency dependence of the modal damping for ``kv``/``sh``.
 5. **Measure the gain**: Δ log Z ± err, Δ ELPD ± se, RMS residual and 90 %
@@ -135,7 +138,7 @@ __all__ = [
 #: The catalogue of causes, in the order they are tried (names are model parts).
 CATALOGUE: tuple[str, ...] = (
     "kv", "sh", "tip_mass", "added_mass", "root_spring", "stiffness_gradient", "drag",
-    "friction", "ar1_noise", "sensor_offset",
+    "friction", "amplitude_stiffness", "ar1_noise", "sensor_offset",
 )
 #: A cause is significant when Δ log Z - 2 err exceeds this (nats; Bayes factor > 20).
 SIGNIFICANCE = 3.0
@@ -199,6 +202,19 @@ def signature_support(cause: str, sig: Any) -> tuple[bool | None, str]:
             "mode-1 decay rate vs amplitude beyond the model: its excess at the initial "
             f"amplitude is {100 * d:+.0f} ± {100 * e:.0f} % of the small-amplitude rate, "
             f"{way}; {want}")
+    if cause == "amplitude_stiffness":
+        d = sig.amplitude_trends.get("data") or {}
+        m = sig.amplitude_trends.get("model") or {}
+        keys = ("f1_hz_per_mm", "f1_hz_per_mm_se")
+        vals = [d.get(k, math.nan) for k in keys] + [m.get(k, math.nan) for k in keys]
+        if not all(math.isfinite(x) for x in vals):
+            return None, ("f1 against amplitude not measurable on this record (fewer than "
+                          "three windows, or mode 1 too weak)")
+        diff, err = vals[0] - vals[2], math.hypot(vals[1], vals[3])
+        way = "falls" if diff < 0 else "rises"
+        return bool(abs(diff) > 2 * err), (
+            f"f1 {way} with the mode-1 tip amplitude by {1e3 * diff:+.3g} ± {1e3 * err:.2g} "
+            "mHz per mm beyond the model (falls: softening, rises: hardening)")
     if cause == "ar1_noise":
         return bool(not sig.white and sig.lag1 > 0.2), (
             f"residuals autocorrelated: lag-1 {sig.lag1:.2f}, Ljung–Box p = {sig.ljung_box_p:.2g}")

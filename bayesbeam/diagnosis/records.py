@@ -293,6 +293,9 @@ class Diagnosis:
             ]
             if moves:
                 lines.append("   Parameters moved: " + "; ".join(moves) + ".")
+            size = _size_text(r.parameter_moves)
+            if size:
+                lines.append(f"   Size: {size}.")
         if self.final_check is not None and self.named_causes:
             best = max(self.final_check.candidates, key=lambda c: _nan_low(c.delta_chi2_half),
                        default=None)
@@ -307,6 +310,30 @@ class Diagnosis:
         if self.notes:
             lines += ["", "## Notes", ""] + [f"- {n}" for n in self.notes]
         return "\n".join(lines) + "\n"
+
+
+#: Parameters of named causes in the units a reader judges: name -> (factor, unit, label).
+_SIZE_UNITS = {
+    "f1_slope": (1.0, "mHz per mm of mode-1 tip amplitude (negative: softening)",
+                 "f1 change"),
+    "added_mass": (1e3, "g", "added mass"),
+    "added_mass_position": (1e2, "cm from the clamp", "at"),
+    "tip_mass": (1e3, "g", "tip mass"),
+    "friction": (1e3, "mN", "clamp friction force"),
+    "drag": (1.0, "kg/m²", "drag coefficient c_q"),
+}
+
+
+def _size_text(moves: Mapping[str, Any]) -> str:
+    """Posterior sizes of a round's new parameters in reader's units (SI internally)."""
+    out = []
+    for name, (factor, unit, label) in _SIZE_UNITS.items():
+        v = moves.get(name)
+        if v is None or not all(math.isfinite(x) for x in v["after"]):
+            continue
+        mean, sd = v["after"]
+        out.append(f"{label} {factor * mean:.4g} ± {factor * sd:.2g} {unit}")
+    return "; ".join(out)
 
 
 def _nan_low(x: float) -> float:

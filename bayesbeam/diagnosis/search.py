@@ -138,6 +138,7 @@ class _Engine:
                                               other=[est[0].frequency * r for r in (6.267, 17.55)])
                 if dva is not None and np.isfinite(dva.excess_se):
                     feats.update(excess=dva.excess, excess_se=dva.excess_se, rate0=dva.rate0)
+                feats.update(_frequency_slope(self.trial, est[0].frequency))
             self._features = feats
         return self._features
 
@@ -264,6 +265,14 @@ class _Engine:
             v0 = variants[0] if variants else base
             rows += [[v[n] for n in names]
                      for v in _amplitude_starts(pb, lin, v0, feats, amp_new)]
+        if "f1_slope" in new and "f1_slope" in feats:
+            # The data's f1 against the mode-1 tip amplitude (sliding windows), and half.
+            v0 = variants[0] if variants else base
+            lo, hi = pb.priors["f1_slope"].bounds
+            for fac in (1.0, 0.5):
+                w = dict(v0)
+                w["f1_slope"] = float(np.clip(fac * feats["f1_slope"], 0.99 * lo, 0.99 * hi))
+                rows.append([w[n] for n in names])
         return rows
 
     # -- sampling and scoring ---------------------------------------------------------
@@ -378,6 +387,33 @@ def _fwd_row(pb: Any, lin: Any, v: Mapping[str, float]) -> np.ndarray:
     P = pb.forward_params(X)[0]
     vals = dict(zip(pb.forward.param_names, P, strict=True))
     return np.array([vals[n] for n in lin.param_names], dtype=float)
+
+
+def _frequency_slope(trial: Any, f1: float) -> dict[str, float]:
+    """Return the data's change of f1 per m of mode-1 tip amplitude and its se (Hz/m), or {}.
+
+    Sliding windows of four mode-1 periods (:func:`bayesbeam.trials.amplitude.
+    amplitude_curves`), weighted slope (:func:`~bayesbeam.trials.amplitude_bins.
+    amplitude_trend`, Hz per mm, converted here to SI). Empty for a record shorter than
+    three windows or without a mode-1 peak.
+    """
+    from bayesbeam.trials.amplitude import amplitude_curves
+    from bayesbeam.trials.amplitude_bins import amplitude_trend, tip_factor
+    from bayesbeam.trials.modal_id import SignatureError
+
+    t, y = trial.times, trial.values
+    if not (np.isfinite(f1) and f1 > 0) or t[-1] - t[0] < 3 * 4.0 / f1:
+        return {}
+    try:
+        c = amplitude_curves(t, y, f1=f1, n_modes=1, quantity=trial.quantity,
+                             tip_factor=tip_factor(trial.beam))
+    except SignatureError:
+        return {}
+    slope, se, n = amplitude_trend(c.amplitude_m, c.frequency[:, 0], c.frequency_se[:, 0],
+                                   hop=c.hop_s, window=c.window_s)
+    if not (np.isfinite(slope) and np.isfinite(se)) or n < 3:
+        return {}
+    return {"f1_slope": 1e3 * slope, "f1_slope_se": 1e3 * se}  # Hz/mm -> Hz/m
 
 
 def _amplitude_starts(pb: Any, lin: Any, v: Mapping[str, float],

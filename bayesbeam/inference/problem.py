@@ -191,6 +191,8 @@ def default_priors(
     root_spring               LogUniform: κ = k L/(E_ref I) in [1, 1e4]
     stiffness_gradient        Uniform(-1, 1)
     drag, friction            LogUniform: equivalent ζ1 at the data's amplitude in [1e-7, 0.05]
+    f1_slope                  Uniform(-s, s), s = 0.1 f1 / A: f1 may move by up to 10 % at
+                              the data's mode-1 tip amplitude A (Hz per m)
     w0, p0, A_k, B_k          Uniform(-s, s), s generous (10× the data's scale)
     sigma                     LogUniform(1e-4 σ_y, 2 σ_y), σ_y = sd of the data
     rho                       Uniform(0, 0.995)
@@ -264,6 +266,13 @@ def default_priors(
             k = dict(zip(("drag", "friction"), nonlinear_damping_scales(
                 beam, E_ref, amp, n_elements=n_elements), strict=True))[n]
             out[n] = LogUniform(1e-7 / k, 0.05 / k)
+        elif n == "f1_slope":
+            # A natural frequency that moves by 10 % with amplitude is far beyond what a
+            # release test of a metal beam shows (geometric stiffening of a cantilever:
+            # ~1e-3 at a tip deflection of a tenth of its length); both signs.
+            amp = max(_mode1_amplitude(trial, order, n_elements), 1e-9)
+            s_max = 0.1 * (w1 / (2 * np.pi)) / amp
+            out[n] = Uniform(-s_max, s_max)
         elif n == "sigma":
             out[n] = LogUniform(1e-4 * sd_y, 2 * sd_y)
         elif n == "rho":

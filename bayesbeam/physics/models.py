@@ -21,6 +21,8 @@ root_spring   N m/rad      rotational clamp stiffness k_theta
 stiffness_gradient  1      EI(x) factor 1 + g (x/L - 1/2)
 drag          kg/m²        quadratic air drag per unit length, force -c_q |w_t| w_t
 friction      N            dry (Coulomb) clamp friction on the first mode
+f1_slope      Hz/m         change of the first natural frequency per m of its tip
+                           amplitude (negative: softening)
 ============  ===========  ===============================================
 """
 
@@ -39,9 +41,12 @@ STRUCTURAL: dict[str, tuple[str, ...]] = {
     "root_spring": ("root_spring",),
     "stiffness_gradient": ("stiffness_gradient",),
 }
-#: Extensions that act on the nonlinear dynamics (physics.md §3, amplitude-dependent
-#: damping): quadratic air drag and dry clamp friction, each a cause of its own.
-NONLINEAR: dict[str, tuple[str, ...]] = {"drag": ("drag",), "friction": ("friction",)}
+#: Extensions that act on the nonlinear dynamics (physics.md §3): amplitude-dependent
+#: damping (quadratic air drag, dry clamp friction) and an amplitude-dependent first
+#: natural frequency, each a cause of its own.
+NONLINEAR: dict[str, tuple[str, ...]] = {
+    "drag": ("drag",), "friction": ("friction",), "amplitude_stiffness": ("f1_slope",),
+}
 #: Former model parts and what replaced them (named in the error message).
 _RENAMED: dict[str, str] = {
     "amplitude_damping": "was split into 'drag' (quadratic air drag) and 'friction' (dry "

@@ -27,6 +27,17 @@ have either or both (``viscous+kv+drag``, ``viscous+kv+friction``,
     (``≈ 3.09 EI/L³`` for a uniform cantilever). A few mN is physical for a vise-clamped
     strip (0.1–0.2 mm per cycle on a 0.4 m aluminium strip, k_1 ≈ 115 N/m).
 
+``amplitude_stiffness`` (f1_slope, Hz/m)
+    A first natural frequency that moves with the amplitude of the first mode,
+    ``f_1(A) = f_1 + s A`` with A its tip amplitude (negative s: softening, e.g. a
+    clamp that gives under load; positive: hardening, e.g. the geometric stiffening of
+    large deflections). The first-order (linear in A) term of the backbone curve over a
+    record's amplitude range; reported in Hz per mm. An odd restoring force
+    ``-k_a |q_1| q_1`` on the first M-orthonormal modal coordinate has, to first order,
+    ``s = 2 k_a / (3 π² |s_1| ω_1)`` (harmonic balance: its first harmonic is
+    ``(8/3π) k_a a q_1`` for ``q_1 = a cos φ``), which is how the direct integration
+    of the tests produces it.
+
 Signatures: the drag's energy loss per cycle grows as the cube of the amplitude, so the
 decay rate grows with amplitude; Coulomb friction's grows only linearly, so the
 amplitude falls linearly in time and the decay rate grows as the amplitude falls. The
@@ -54,8 +65,13 @@ where ``P_k`` is the cycle-mean power the nonlinear forces take from mode k:
   ``P = (2/π) F_c |s_1| Q``, Q the amplitude of ``q_1'``.
 
 Drag and Coulomb forces are odd in the velocity and in phase with it, so to first order
-they change no frequency. ``ρ`` is integrated with a fixed-step RK4 scheme on a per-set
-grid (``steps_per_period`` steps per period of the first mode, default one step per two
+they change no frequency. The amplitude-dependent frequency adds a slow phase to the
+first complex mode (the one that is mostly ``q_1``): its contribution is multiplied by
+``ρ_1 e^{iθ}`` with ``θ' = 2π s A(τ)``, ``A = 2 |c_1| |φ(L)·q_1| e^{Re λ_1 τ} ρ_1``
+its current tip amplitude, integrated with ρ.
+
+``ρ`` (and θ) are integrated with a fixed-step RK4 scheme on a per-set grid
+(``steps_per_period`` steps per period of the first mode, default one step per two
 periods: the slow flow changes by O(2π ε) per period, so the RK4 error, O((4π ε)⁵), and the
 interpolation error stay far below the O(ε) averaging error; the step depends only on
 the set, so a set's result does not depend on the other sets in its batch), clipped at 0
@@ -63,11 +79,13 @@ the set, so a set's result does not depend on the other sets in its batch), clip
 cubic Hermite polynomials (linear in the step where friction stops a mode). The signal
 is the linear one plus
 
-    Σ_k 2 Re(X_k e^{λ_k τ} [λ_k^p (ρ_k - 1) + p λ_k^{p-1} ρ_k'])
+    Σ_k 2 Re(X_k e^{λ_k τ} [λ_k^p (ρ_k e^{iθ_k} - 1)
+                             + p λ_k^{p-1} (ρ_k' + i θ_k' ρ_k) e^{iθ_k}])
 
 with p = 0, 1, 2 for displacement, velocity and acceleration (the exact derivatives of
-``ρ_k e^{λ_k τ}`` except the O(ε²) ρ'' term). With ``drag = friction = 0`` (or the
-parameter absent from the model) the correction is exactly zero and the result is
+``ρ_k e^{iθ_k} e^{λ_k τ}`` except the O(ε²) terms in ρ'', θ'' and θ'²; θ_k = 0 but for
+the first mode with ``f1_slope``). With ``drag = friction = f1_slope = 0`` (or the
+parameters absent from the model) the correction is exactly zero and the result is
 bit-for-bit the linear :class:`~bayesbeam.physics.forward.Forward`.
 
 Approximations (checked against a direct LSODA integration, rtol 1e-10, of the full
@@ -292,9 +310,10 @@ class NonlinearForward:
         self.model = parse_model(model)
         if not self.model.nonlinear:
             raise NonlinearError(
-                f"model {self.model.name!r} has no amplitude-dependent damping; use "
-                "bayesbeam.physics.forward.Forward for linear models or add '+drag' "
-                "and/or '+friction'"
+                f"model {self.model.name!r} has no nonlinear part (drag, friction, "
+                "amplitude_stiffness); use "
+                "bayesbeam.physics.forward.Forward for linear models or add '+drag', '+friction'"
+                " or '+amplitude_stiffness'"
             )
         linear = parse_model("+".join(p for p in self.model.parts if p not in NONLINEAR))
         self.linear = Forward(beam, linear, times, n_elements=n_elements, initial=initial,
@@ -326,6 +345,8 @@ class NonlinearForward:
         self._i_drag = self.param_names.index("drag") if "drag" in self.param_names else None
         self._i_fric = (self.param_names.index("friction") if "friction" in self.param_names
                         else None)
+        self._i_slope = (self.param_names.index("f1_slope") if "f1_slope" in self.param_names
+                         else None)
         self._tau = self.times - self.t0  # (T,) s since the initial condition
         xq, wq = _gauss_points(np.asarray(self.fe.nodes), _DRAG_GAUSS)
         self._Nq = self.fe.shape(xq)  # (nq, n) displacement rows at the drag points
@@ -336,18 +357,19 @@ class NonlinearForward:
     def _columns(self, theta: np.ndarray | dict) -> np.ndarray:
         return parameter_columns(theta, self.param_names, NonlinearError)
 
-    def _forces(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Columns ``drag`` (kg/m²) and ``friction`` (N) of ``theta``, zeros where absent."""
+    def _forces(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Columns ``drag`` (kg/m²), ``friction`` (N), ``f1_slope`` (Hz/m); 0 where absent."""
         zero = np.zeros(theta.shape[0])
         drag = theta[:, self._i_drag] if self._i_drag is not None else zero
         fric = theta[:, self._i_fric] if self._i_fric is not None else zero
-        return drag, fric
+        slope = theta[:, self._i_slope] if self._i_slope is not None else zero
+        return drag, fric, slope
 
     def check(self, theta: np.ndarray | dict) -> np.ndarray:
         """Return the mask of admissible parameter sets.
 
         ``drag`` (kg/m²) and ``friction`` (N), where the model has them, must be finite
-        and ≥ 0; the other parameters as in
+        and ≥ 0, ``f1_slope`` (Hz/m) finite; the other parameters as in
         :meth:`bayesbeam.physics.forward.Forward.check`.
 
         Parameters
@@ -363,6 +385,8 @@ class NonlinearForward:
         for j in (self._i_drag, self._i_fric):
             if j is not None:
                 ok &= np.isfinite(theta[:, j]) & (theta[:, j] >= 0)
+        if self._i_slope is not None:
+            ok &= np.isfinite(theta[:, self._i_slope])
         return ok
 
     def modes(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
@@ -453,11 +477,12 @@ class NonlinearForward:
 
     # -- slow flow ----------------------------------------------------------------------
     def _slow_flow(self, cm: dict[str, np.ndarray], drag: np.ndarray, fric: np.ndarray,
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Envelope factors ρ - 1 and ρ' (1/s) at the sample times, shape (b, T, K') each.
+                   slope: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Envelopes and phases of the modes at the sample times.
 
-        Only the K' modes whose envelope moves in some set of the batch are returned;
-        their indices (K',) come third.
+        Returns ``ρ - 1``, ``ρ'`` (1/s), ``θ`` (rad) and ``θ'`` (rad/s), each of shape
+        (b, T, K'), for the K' modes whose envelope or phase moves in some set of the
+        batch, and their indices (K',).
         """
         lam, W, c, v2 = cm["lam"], cm["W"], cm["c"], cm["v2"]
         act = cm["active"]
@@ -480,21 +505,28 @@ class NonlinearForward:
             f1 = fric * cm["s1"] * (2 / np.pi) * cm["q1"][rows, k1] / (ac[rows, k1] * v2[rows, k1])
         fcoef[rows, k1] = np.where((fric > 0) & act[rows, k1], f1, 0.0)
         fcoef = np.where(np.isfinite(fcoef), fcoef, np.inf)  # c = 0: the mode is not excited
+        # Phase of that mode: θ' = 2π s A, A = 2 |c| |φ(L)·q| e^{στ} ρ its tip amplitude.
+        pcoef = np.where(act[rows, k1], 2 * np.pi * slope * 2 * ac[rows, k1]
+                         * cm["xtip"][rows, k1], 0.0)  # (b,)
+        use_phase = bool(np.any(pcoef != 0))
+        sig1 = sig[rows, k1]
 
-        def rate(tau: np.ndarray, rho: np.ndarray) -> np.ndarray:
-            """ρ' at times tau (b,) for ρ (b, K)."""
-            r = np.maximum(rho, 0.0)
+        def rate(tau: np.ndarray, z: np.ndarray) -> np.ndarray:
+            """Return the derivative at times tau (b,) of z = (ρ_1..ρ_K, θ), (b, K + 1)."""
+            r = np.maximum(z[:, :K], 0.0)
             e = np.exp(sig * tau[:, None])  # (b, K)
-            out = np.zeros_like(r)
+            out = np.zeros_like(z)
             if use_drag:
                 Bx = Bs * (e * r)[:, :, None]  # (b, K, nq)
                 tot = np.sum(Bx**2, axis=1, keepdims=True)
                 Ax = np.sqrt(np.maximum(tot - Bx**2, 0.0))
                 G = two_tone_drag(Ax, Bx)
-                out -= r * dcoef * np.einsum("bkq,q->bk", W2 * G, wq)
+                out[:, :K] -= r * dcoef * np.einsum("bkq,q->bk", W2 * G, wq)
             with np.errstate(over="ignore", invalid="ignore"):
                 fr = np.where(fcoef > 0, fcoef / e, 0.0)
-            out -= np.where(r > 0, fr, 0.0)
+            out[:, :K] -= np.where(r > 0, fr, 0.0)
+            if use_phase:
+                out[:, K] = pcoef * np.exp(sig1 * tau) * r[rows, k1]
             return out
 
         tau_end = float(self._tau[-1])
@@ -504,32 +536,37 @@ class NonlinearForward:
         n_steps = np.clip(n_steps, 8, 100_000).astype(int)  # (b,)
         h = tau_end / n_steps  # (b,) per-set step: a set's grid ignores the batch
         N = int(n_steps.max())
-        rho_g = np.empty((N + 1, b, K))
-        drho_g = np.empty((N + 1, b, K))
-        rho = np.ones((b, K))
+        z_g = np.empty((N + 1, b, K + 1))
+        dz_g = np.empty((N + 1, b, K + 1))
+        z = np.concatenate([np.ones((b, K)), np.zeros((b, 1))], axis=1)
         with np.errstate(over="ignore", invalid="ignore", under="ignore"):
             for i in range(N + 1):
                 tau = np.minimum(i, n_steps) * h
-                d = rate(tau, rho)
-                rho_g[i], drho_g[i] = rho, np.where(rho > 0, d, 0.0)
+                d = rate(tau, z)
+                d[:, :K] = np.where(z[:, :K] > 0, d[:, :K], 0.0)
+                z_g[i], dz_g[i] = z, d
                 if i == N:
                     break
                 hh = h[:, None]
-                k2 = rate(tau + 0.5 * h, rho + 0.5 * hh * d)
-                k3 = rate(tau + 0.5 * h, rho + 0.5 * hh * k2)
-                k4 = rate(tau + h, rho + hh * k3)
-                new = np.maximum(rho + hh / 6 * (d + 2 * k2 + 2 * k3 + k4), 0.0)
+                k2 = rate(tau + 0.5 * h, z + 0.5 * hh * d)
+                k3 = rate(tau + 0.5 * h, z + 0.5 * hh * k2)
+                k4 = rate(tau + h, z + hh * k3)
+                new = z + hh / 6 * (d + 2 * k2 + 2 * k3 + k4)
+                new[:, :K] = np.maximum(new[:, :K], 0.0)
                 new = np.where(np.isnan(new), 0.0, new)
-                rho = np.where((i < n_steps)[:, None], new, rho)
+                z = np.where((i < n_steps)[:, None], new, z)
         # Cubic Hermite interpolation to the sample times on each set's own grid, as one
-        # cubic per interval, ρ = a0 + u (a1 + u (a2 + u a3)) with u the position in the
-        # interval (coefficients formed on the grid, gathered once).
-        # Only modes whose envelope moves in some set need it (friction alone moves one).
-        moving = np.flatnonzero(np.any(rho_g != 1.0, axis=(0, 1)))
-        K = moving.size
-        rho_g, drho_g = rho_g[:, :, moving], drho_g[:, :, moving]
-        r0, r1 = rho_g[:-1], rho_g[1:]  # (N, b, K)
-        d0, d1 = drho_g[:-1] * h[None, :, None], drho_g[1:] * h[None, :, None]
+        # cubic per interval, z = a0 + u (a1 + u (a2 + u a3)) with u the position in the
+        # interval (coefficients formed on the grid, gathered once). Only the modes whose
+        # envelope moves in some set need it (friction alone moves one), and the phase.
+        moving = np.flatnonzero(np.any(z_g[:, :, :K] != 1.0, axis=(0, 1)))
+        if use_phase:
+            moving = np.union1d(moving, k1[pcoef != 0])
+        cols = np.append(moving, K) if use_phase else moving
+        Km = moving.size
+        z_g, dz_g = z_g[:, :, cols], dz_g[:, :, cols]
+        r0, r1 = z_g[:-1], z_g[1:]  # (N, b, C)
+        d0, d1 = dz_g[:-1] * h[None, :, None], dz_g[1:] * h[None, :, None]
         a2 = 3 * (r1 - r0) - 2 * d0 - d1
         a3 = 2 * (r0 - r1) + d0 + d1
         # In the step where friction stops a mode (ρ reaches 0) the envelope has a kink: a
@@ -537,23 +574,34 @@ class NonlinearForward:
         # the straight line from the last positive node there (near the stop ρ' ≈ -b(τ),
         # independent of ρ, and the line is accurate to O(h² b')).
         kink = (r0 > 0) & (r1 <= 0)
+        kink[:, :, Km:] = False  # the phase column has no kink
         a2 = np.where(kink, 0.0, a2)
         a3 = np.where(kink, 0.0, a3)
-        coef = np.concatenate([r0 - 1.0, d0, a2, a3], axis=2)  # (N, b, 4K)
-        coef = np.ascontiguousarray(np.swapaxes(coef, 0, 1)).reshape(b * N, 4 * K)
+        base = r0.copy()
+        base[:, :, :Km] -= 1.0  # ρ - 1 for the envelopes, θ itself for the phase
+        C = cols.size
+        coef = np.concatenate([base, d0, a2, a3], axis=2)  # (N, b, 4C)
+        coef = np.ascontiguousarray(np.swapaxes(coef, 0, 1)).reshape(b * N, 4 * C)
         sj = self._tau[None, :] / h[:, None]  # (b, T)
         j = np.clip(np.floor(sj).astype(np.intp), 0, n_steps[:, None] - 1)
         u = np.clip(sj - j, 0.0, 1.0)  # (b, T)
         cj = np.take(coef, (j + N * np.arange(b)[:, None]).ravel(), axis=0)
-        cj = cj.reshape(b, -1, 4, K)  # (b, T, 4, K)
+        cj = cj.reshape(b, -1, 4, C)  # (b, T, 4, C)
         c0, c1, c2, c3 = cj[:, :, 0], cj[:, :, 1], cj[:, :, 2], cj[:, :, 3]
         u = u[:, :, None]
-        U = c0 + u * (c1 + u * (c2 + u * c3))  # ρ - 1
-        V = (c1 + u * (2 * c2 + 3 * u * c3)) / h[:, None, None]  # ρ'
+        Z = c0 + u * (c1 + u * (c2 + u * c3))
+        D = (c1 + u * (2 * c2 + 3 * u * c3)) / h[:, None, None]
+        U, V = Z[:, :, :Km], D[:, :, :Km]  # ρ - 1, ρ'
         stopped = U <= -1.0
         U[stopped] = -1.0
         V[stopped] = 0.0
-        return U, V, moving
+        TH = np.zeros_like(U)
+        DTH = np.zeros_like(U)
+        if use_phase:
+            at = np.searchsorted(moving, k1)  # column of each set's first mode
+            TH[rows, :, at] = Z[:, :, Km]
+            DTH[rows, :, at] = D[:, :, Km]
+        return U, V, TH, DTH, moving
 
     def _modal_exponentials(self, lam: np.ndarray) -> np.ndarray:
         """``exp(λ τ)`` at the sample times, shape (b, T, K), complex.
@@ -577,7 +625,7 @@ class NonlinearForward:
     def _correction(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nonlinear correction to the linear signal, (b, T), and its validity (b,)."""
         th_lin = theta[:, self._lin_idx]
-        drag, fric = self._forces(theta)
+        drag, fric, slope = self._forces(theta)
         with np.errstate(all="ignore"):
             cm = self._complex_modes(th_lin)
             lam = cm["lam"]
@@ -585,17 +633,20 @@ class NonlinearForward:
             if self.linear.bandwidth is not None:  # the sensor's filter removes these modes
                 shown = shown & (np.abs(lam) <= 2 * np.pi * self.linear.bandwidth)
             X = np.where(shown, cm["X"], 0.0)
-            U, V, moving = self._slow_flow(cm, drag, fric)
+            U, V, TH, DTH, moving = self._slow_flow(cm, drag, fric, slope)
             lam, X = lam[:, moving], X[:, moving]
-            # Mode k adds 2 Re(X e^{λτ} [λ^p (ρ - 1) + p λ^{p-1} ρ']) (p-th derivative of
-            # ρ e^{λτ} without the O(ε²) ρ'' term).
+            # Mode k adds 2 Re(X e^{λτ} [λ^p (ρ e^{iθ} - 1) + p λ^{p-1} (ρ' + iθ'ρ) e^{iθ}])
+            # (p-th derivative of ρ e^{iθ} e^{λτ} without the O(ε²) ρ'', θ'', θ'² terms).
+            # Written so that θ = 0 gives exactly the envelope-only terms U and V.
             p = self._order
             Pm = (2 * X)[:, None, :] * self._modal_exponentials(lam)  # (b, T, K)
             lp = lam**p
             ld = p * lam ** (p - 1) if p else np.zeros_like(lam)
-            re = lp.real[:, None, :] * U + ld.real[:, None, :] * V
-            im = lp.imag[:, None, :] * U + ld.imag[:, None, :] * V
-            dy = np.sum(Pm.real * re - Pm.imag * im, axis=2)
+            rot = np.exp(1j * TH)
+            Zc = U + (1.0 + U) * (rot - 1.0)
+            Dc = V * rot + 1j * DTH * (1.0 + U) * rot
+            term = lp[:, None, :] * Zc + ld[:, None, :] * Dc
+            dy = np.sum(Pm.real * term.real - Pm.imag * term.imag, axis=2)
         ok = np.all(np.isfinite(dy), axis=1)
         return np.where(ok[:, None], dy, 0.0), ok
 
@@ -624,8 +675,8 @@ class NonlinearForward:
         lin = self.linear.simulate(theta[:, self._lin_idx])
         valid &= lin.valid
         y[valid] = lin.y[valid]
-        drag, fric = self._forces(theta)
-        nl = valid & ((drag > 0) | (fric > 0))
+        drag, fric, slope = self._forces(theta)
+        nl = valid & ((drag > 0) | (fric > 0) | (slope != 0))
         if np.any(nl):
             dy, ok = self._correction(theta[nl])
             idx = np.flatnonzero(nl)
@@ -667,7 +718,7 @@ class NonlinearForward:
         if not np.any(valid):
             return zd, zf
         th = theta[valid]
-        drag, fric = self._forces(th)
+        drag, fric, _ = self._forces(th)
         with np.errstate(all="ignore"):
             cm = self._complex_modes(th[:, self._lin_idx])
             lam = cm["lam"][:, 0]

@@ -9,7 +9,9 @@ bars of ±1 standard error, the amplitude-bin means on top.
   only where mode 2 is resolved), :func:`plot_residual_spectrogram` (d);
 * :func:`write_amplitude_figures` writes all four as PNG files;
 * ``extra`` curves ``{label: (amplitude_m, values)}`` are drawn over the data by
-  :func:`overlay_curves`: the hook for a fitted model's predicted curves.
+  :func:`overlay_curves`; :func:`model_extra` builds them from the curves of fitted
+  models' predictions (``bayesbeam fit`` draws its model, ``bayesbeam diagnose`` the
+  baseline and the final model).
 """
 
 from __future__ import annotations
@@ -22,11 +24,13 @@ import numpy as np
 
 __all__ = [
     "FIGURES",
+    "model_extra",
     "overlay_curves",
     "plot_mode1",
     "plot_mode2",
     "plot_residual_spectrogram",
     "write_amplitude_figures",
+    "write_model_overlays",
 ]
 
 #: File names written by :func:`write_amplitude_figures`, by panel key.
@@ -59,8 +63,35 @@ def overlay_curves(ax: Any, extra: Extra | None) -> None:
     """
     for label, (a, v) in (extra or {}).items():
         a, v = np.asarray(a, dtype=float), np.asarray(v, dtype=float)
-        order = np.argsort(a)
-        ax.plot(a[order], v[order], "-", lw=1.5, label=label)
+        ok = np.isfinite(a) & np.isfinite(v)  # windows where the mode was not resolved
+        order = np.argsort(a[ok])
+        ax.plot(a[ok][order], v[ok][order], "-", lw=1.5, label=label)
+
+
+def model_extra(models: Mapping[str, Any]) -> dict[str, Any]:
+    """Overlay curves for :func:`write_amplitude_figures` from models' amplitude curves.
+
+    Parameters
+    ----------
+    models : mapping of str to AmplitudeCurves
+        ``{label: curves}``, each from :func:`bayesbeam.trials.amplitude.amplitude_curves`
+        run on a fitted model's noise-free prediction at the record's stamps (so the
+        model is read by the same estimator as the data).
+
+    Returns
+    -------
+    dict
+        The ``extra`` argument of :func:`write_amplitude_figures`.
+    """
+    out: dict[str, Any] = {"f1": {}, "zeta1": {}, "mode2": {"ratio": {}, "zeta2": {}}}
+    for label, c in models.items():
+        a = c.amplitude_m
+        out["f1"][label] = (a, c.frequency[:, 0])
+        out["zeta1"][label] = (a, c.zeta[:, 0])
+        if c.frequency.shape[1] > 1:
+            out["mode2"]["ratio"][label] = (a, c.ratio[0])
+            out["mode2"]["zeta2"][label] = (a, c.zeta[:, 1])
+    return out
 
 
 def _panel(ax: Any, curves: Any, x: np.ndarray, y: np.ndarray, se: np.ndarray,
@@ -239,3 +270,45 @@ def write_amplitude_figures(curves: Any, outdir: str | Path, *,
         fig.savefig(path, dpi=dpi)
         paths.append(path)
     return paths
+
+
+def write_model_overlays(trial: Any, predictions: Mapping[str, Any], outdir: str | Path, *,
+                         say: Any = None) -> list[Path]:
+    """Amplitude figures of a record with fitted models' curves drawn over the data's.
+
+    The data's curves and each model's come from the same estimator
+    (:func:`bayesbeam.trials.amplitude.amplitude_curves`, two modes), the model's on its
+    noise-free prediction at the record's stamps, so what differs is what the model
+    gets wrong (a linear model's f1 and ζ1 are flat in amplitude).
+
+    Parameters
+    ----------
+    trial : bayesbeam.trials.trial.Trial
+        The record as fitted.
+    predictions : mapping of str to ndarray, shape (T,)
+        ``{label: signal}``, e.g. the posterior-median prediction of each model.
+    outdir : str or Path
+        Folder of the figures (names in :data:`FIGURES`).
+    say : callable, optional
+        Receives a line when the curves cannot be drawn (e.g. a record shorter than
+        three windows); nothing is written then.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    from bayesbeam.trials.amplitude import amplitude_curves, tip_factor
+    from bayesbeam.trials.modal_id import SignatureError
+
+    kw = {"n_modes": 2, "quantity": trial.quantity, "tip_factor": tip_factor(trial.beam)}
+    try:
+        data = amplitude_curves(trial.times, trial.values, **kw)
+        f1 = data.settings["start_frequencies_hz"][0]
+        models = {label: amplitude_curves(trial.times, y, f1=f1, **kw)
+                  for label, y in predictions.items()}
+    except SignatureError as err:
+        if say is not None:
+            say(f"amplitude curves not drawn: {err}")
+        return []
+    return write_amplitude_figures(data, outdir, extra=model_extra(models), title=trial.name)

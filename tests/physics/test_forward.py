@@ -341,10 +341,12 @@ def test_grid_with_holes_equals_the_arbitrary_times_route():
     y_any = holed.simulate(theta).y[0]
     # Two exact routes: rounding only (measured 3e-12).
     assert _relmax(y_grid, y_any) < 1e-10
-    # Jittered stamps, or a grid more than half empty, are not such a grid.
+    # Jittered stamps, or a grid with more than GRID_FILL (4) points per sample, are not
+    # such a grid.
     rng = np.random.default_rng(1)
     assert grid_with_holes(np.cumsum(rng.uniform(1e-3, 2e-3, 50))) is None
-    assert grid_with_holes(np.array([0.0, 1e-3, 5e-3])) is None
+    assert grid_with_holes(np.array([0.0, 1e-3, 20e-3])) is None
+    assert grid_with_holes(np.array([0.0, 1e-3, 5e-3])) is not None
 
 
 # --- (5) batches, invalid sets, errors ---------------------------------------------------------
