@@ -100,7 +100,7 @@ class _Engine:
     def features(self) -> dict[str, float]:
         """Measured f1, f2 (f3) and decay rates of the data (for physics-based starts)."""
         if self._features is None:
-            from bayesbeam.inference.problem import first_frequency
+            from bayesbeam.inference.problem import record_f1
             from bayesbeam.trials.modal_id import (
                 damped_sinusoids,
                 decay_rate_vs_amplitude,
@@ -109,7 +109,7 @@ class _Engine:
             )
 
             t, y = self.trial.times, self.trial.values
-            f1 = first_frequency(t, y)
+            f1 = record_f1(self.trial)
             nyq = 0.5 / float(np.median(np.diff(t)))
             f, amp = periodogram(t, y)
             guesses = [f1]

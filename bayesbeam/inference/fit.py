@@ -30,7 +30,7 @@ from scipy.special import logsumexp
 
 from bayesbeam.inference.adequacy import assess
 from bayesbeam.inference.mesh import converge_mesh
-from bayesbeam.inference.problem import BETA1, Problem, first_frequency
+from bayesbeam.inference.problem import BETA1, Problem, record_f1
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
@@ -139,7 +139,7 @@ def _start_points(problem: Problem, rng: np.random.Generator, n_starts: int) -> 
     trial, beam = problem.trial, problem.trial.beam
     names = problem.names
     pri = problem.priors
-    f1 = first_frequency(trial.times, trial.values)
+    f1 = record_f1(trial)
     E0 = float(np.sqrt(np.prod(pri["E"].bounds)))  # prior centre = reference modulus
     w1 = 2 * np.pi * f1
     zeta = first_mode_decay_rate(trial.times, trial.values, f1) / w1

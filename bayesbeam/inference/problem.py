@@ -45,7 +45,9 @@ from bayesbeam.stats.likelihood import ar1_loglik, ar1_pointwise, iid_loglik, ii
 from bayesbeam.stats.priors import PriorSet
 from bayesbeam.trials.trial import Trial
 
-__all__ = ["BETA1", "Problem", "default_priors", "first_frequency", "reference_modulus"]
+__all__ = [
+    "BETA1", "Problem", "default_priors", "first_frequency", "record_f1", "reference_modulus",
+]
 
 #: First root of 1 + cos βL cosh βL = 0 (physics.md §4).
 BETA1 = 1.875104069
@@ -69,7 +71,7 @@ def _mode1_amplitude(trial: Trial, order: int, n_elements: int) -> float:
 
     t = np.asarray(trial.times, dtype=float)
     y = np.asarray(trial.values, dtype=float)
-    f1 = first_frequency(t, y)
+    f1 = record_f1(trial)
     w = 2 * np.pi * f1
     trim = 0.1
     est = band_modal_estimate(t, y, f1, trim=trim)
@@ -85,13 +87,16 @@ def _mode1_amplitude(trial: Trial, order: int, n_elements: int) -> float:
     return amp / w**order * ratio
 
 
-def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5) -> float:
+def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5,
+                    near: float | None = None) -> float:
     """First natural frequency in Hz seen in a record's spectrum.
 
     The lowest local maximum above ``f_min`` whose height exceeds 10 % of the
     largest peak (for acceleration records the largest peak may be a higher mode), of
     a zero-padded Hann-windowed periodogram, refined by a parabola through the log of
-    the three bins around it. Non-uniform stamps are interpolated to their mean step
+    the three bins around it; with ``near``, the largest peak within a factor 2 of it
+    (a measured record may hold lines below the first bending mode: the test stand,
+    the clamp, a slow drift). Non-uniform stamps are interpolated to their mean step
     (only to locate the peak).
 
     Parameters
@@ -101,25 +106,34 @@ def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5) -
     f_min : float
         Lowest frequency considered, Hz (at least 3 / record length: the Hann
         window's main lobe).
+    near : float, optional
+        Expected first frequency in Hz (e.g. the nominal beam's, :func:`record_f1`).
 
     Returns
     -------
     float
     """
+    from bayesbeam.trials.modal_id import uniform_grid
+
     t = np.asarray(times, dtype=float)
-    dt = (t[-1] - t[0]) / (t.size - 1)
-    grid = t[0] + dt * np.arange(t.size)
-    y = np.interp(grid, t, np.asarray(values, dtype=float))
+    # A uniform grid: interpolated for jittered stamps; the holes of a resampled record
+    # (a grid with samples dropped around gaps) hold the mean, as a straight line across
+    # 0.1 s would put a spurious low "mode" in the spectrum.
+    _, y, dt = uniform_grid(t, np.asarray(values, dtype=float))
     y = y - np.mean(y)
-    nfft = 8 * int(2 ** np.ceil(np.log2(t.size)))
+    nfft = 8 * int(2 ** np.ceil(np.log2(y.size)))
     spec = np.abs(np.fft.rfft(y * np.hanning(y.size), nfft))
     f = np.fft.rfftfreq(nfft, dt)
     # The Hann window's main lobe is 2/T wide on each side: below ~3/T a constant
     # offset (e.g. the mean of an acceleration record that starts with a release
     # spike) leaks into a spurious low "peak" stronger than 10 % of the first mode.
     spec[f < max(f_min, 3.0 / (t[-1] - t[0]))] = 0.0
-    peaks = np.flatnonzero((spec[1:-1] > spec[:-2]) & (spec[1:-1] >= spec[2:])) + 1
-    peaks = peaks[spec[peaks] > 0.1 * spec.max()]
+    if near is not None and np.any((f > near / 2) & (f < 2 * near) & (spec > 0)):
+        spec = np.where((f > near / 2) & (f < 2 * near), spec, 0.0)
+        peaks = np.array([int(np.argmax(spec))])
+    else:
+        peaks = np.flatnonzero((spec[1:-1] > spec[:-2]) & (spec[1:-1] >= spec[2:])) + 1
+        peaks = peaks[spec[peaks] > 0.1 * spec.max()]
     i = int(peaks[0]) if peaks.size else int(np.argmax(spec))
     if not 0 < i < spec.size - 1:
         return float(f[i])
@@ -127,6 +141,30 @@ def first_frequency(times: np.ndarray, values: np.ndarray, f_min: float = 0.5) -
     denom = a - 2 * b + c
     shift = 0.5 * (a - c) / denom if denom != 0 else 0.0
     return float(f[i] + shift * (f[1] - f[0]))
+
+
+def record_f1(trial: Trial) -> float:
+    """First bending frequency of a record (Hz), sought near the nominal beam's.
+
+    :func:`first_frequency` with ``near`` = the first natural frequency of the trial's
+    beam at its nominal E (rigid clamp, declared masses); without a nominal E, the
+    lowest strong peak.
+
+    Parameters
+    ----------
+    trial : Trial
+
+    Returns
+    -------
+    float
+    """
+    near = None
+    beam = trial.beam
+    if beam.E is not None:
+        fe = assemble(beam, 16, root_dof=False)
+        lam = sla.eigh(fe.K, fe.M, eigvals_only=True, subset_by_index=[0, 0])[0]
+        near = float(np.sqrt(lam * beam.E) / (2 * np.pi))
+    return first_frequency(trial.times, trial.values, near=near)
 
 
 def reference_modulus(trial: Trial, *, n_elements: int = 16) -> float:

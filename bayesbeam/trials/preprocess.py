@@ -33,8 +33,8 @@ The choices
    content). The analysis
    band is ``1.25 ×`` the highest seen mode that fits the sample budget
    (:data:`MAX_SAMPLES` over the analysis span) and the record's own band, the rate
-   ``2.56 ×`` the band (the anti-alias convention of
-   :data:`~bayesbeam.trials.trial.BANDWIDTH_PER_RATE`). Modes above the band are
+   :data:`RATE_PER_BAND` (4) times the band (the anti-alias filter's pass band ends at
+   the band, its stop band starts at the new Nyquist frequency). Modes above the band are
    removed from data (the anti-alias filter) and model (the sensor band) alike, so
    dropping one costs information, never correctness. Uniform stamps are decimated;
    non-uniform ones resampled (cubic spline, then the anti-alias filter), dropping
@@ -94,8 +94,12 @@ MAX_GAP_STEPS = 4.0
 MAX_MODES = 8
 #: Search half-width around f1 r_k, relative.
 MODE_WINDOW = 0.2
-#: The band edge above the highest kept mode (the anti-alias filter's transition).
+#: The band edge above the highest kept mode.
 BAND_MARGIN = 1.25
+#: Analysis rate over analysis band: the anti-alias filter's transition band runs from
+#: the band to the Nyquist frequency, half the band wide; a narrower one (2.56, the
+#: analysers' convention) makes the filter, and its reach around each gap, 2.3 x longer.
+RATE_PER_BAND = 4.0
 
 
 class PreprocessError(ValueError):
@@ -389,7 +393,7 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
 
     # 3. rate and band
     rate = _option(trial, given, "rate")
-    cap = min(native_band, BANDWIDTH_PER_RATE * budget / (end - start))
+    cap = min(native_band, budget / (end - start) / RATE_PER_BAND)
     if rate is not None:
         rate = float(rate)
         if not rate > 0:
@@ -401,11 +405,12 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
     else:
         kept = [f for f in seen if BAND_MARGIN * f <= cap] or [seen[0]]
         band = min(native_band, BAND_MARGIN * max(kept))
-        rate = band / BANDWIDTH_PER_RATE
+        rate = RATE_PER_BAND * band
         if trial.is_uniform:  # an integer decimation factor: no interpolation
             rate = 1.0 / (trial.dt * max(1, math.floor(1.0 / (rate * trial.dt))))
-        rate_how = (f"{BAND_MARGIN:g} x the highest seen mode within the budget of "
-                    f"{budget} samples and the record's band {native_band:.1f} Hz")
+        rate_how = (f"{RATE_PER_BAND:g} x a band of {BAND_MARGIN:g} x the highest seen mode "
+                    f"within the budget of {budget} samples and the record's band "
+                    f"{native_band:.1f} Hz")
     if rate is not None and rate_how != "given" and rate >= 0.9 / median_step:
         rate, band = None, native_band
         rate_how += "; within 10 % of the native rate: raw stamps kept"
@@ -475,11 +480,12 @@ def apply(trial: Trial, pre: Preprocessing) -> Trial:
             out = out.window(pre.start, pre.end)
         if pre.rate is not None:
             q = 1.0 / (pre.rate * out.dt)
+            band = min(pre.band, 0.45 * pre.rate)  # a given rate may be below 2.2 x band
             if out.is_uniform and abs(q - round(q)) <= 1e-6 * q:
-                out = out.decimate(max(1, round(q)))
+                out = out.decimate(max(1, round(q)), band=band)
             else:
                 med = float(np.median(np.diff(out.times)))
-                out = out.resample(1.0 / pre.rate, max_gap=MAX_GAP_STEPS * med)
+                out = out.resample(1.0 / pre.rate, max_gap=MAX_GAP_STEPS * med, band=band)
     except TrialError as err:
         raise PreprocessError(f"cannot prepare {trial.name!r} as planned: {err}") from None
     out = dataclasses.replace(out, bandwidth=min(out.sensor_band, pre.band))

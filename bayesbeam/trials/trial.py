@@ -83,34 +83,53 @@ ANALYSIS_KEYS: dict[str, tuple[type, ...]] = {
 }
 
 
-def anti_alias_taps(q: int) -> np.ndarray:
+def anti_alias_taps(q: int, edge: float = BANDWIDTH_PER_RATE) -> np.ndarray:
     """Zero-phase FIR low-pass for decimation by ``q`` (Kaiser window, Kaiser 1974).
 
-    Pass band up to the new rate's band (:data:`BANDWIDTH_PER_RATE` of the new rate:
+    Pass band up to ``edge`` times the new rate (default :data:`BANDWIDTH_PER_RATE`:
     ripple ``10^(-ANTI_ALIAS_DB/20)``), stop band from the new Nyquist frequency with
     :data:`ANTI_ALIAS_DB` attenuation, so that what folds into the new band is
     1e-5 of what lies above it. (scipy.signal.decimate's default FIR, a Hamming window
     of 20 q + 1 taps, stops only ~50 dB: an impact record's higher modes, tens of
-    m/s^2, would fold back at ~0.1 m/s^2, far above an accelerometer's noise.)
+    m/s^2, would fold back at ~0.1 m/s^2, far above an accelerometer's noise.) The
+    filter's length is inversely proportional to its transition band: a band of 1/4 of
+    the new rate gives a filter 2.3 times shorter than 1/2.56, which matters where its
+    reach around gaps in the stamps costs samples (:meth:`Trial.resample`).
 
     Parameters
     ----------
     q : int
         Decimation factor >= 2.
+    edge : float
+        Pass-band edge as a fraction of the new rate, in (0, 0.5).
 
     Returns
     -------
     ndarray, shape (n,)
         Taps (odd n, symmetric, unit DC gain), at the input rate.
     """
-    edge = 2 * BANDWIDTH_PER_RATE / q  # pass-band edge, in units of the input Nyquist
-    numtaps, beta = scipy.signal.kaiserord(ANTI_ALIAS_DB, 1.0 / q - edge)
+    if not 0 < edge < 0.5:
+        raise TrialError(f"the pass band must end below the new Nyquist frequency; got "
+                         f"{edge} of the new rate")
+    e = 2 * edge / q  # pass-band edge, in units of the input Nyquist frequency
+    numtaps, beta = scipy.signal.kaiserord(ANTI_ALIAS_DB, 1.0 / q - e)
     numtaps |= 1
-    return scipy.signal.firwin(numtaps, 0.5 * (edge + 1.0 / q), window=("kaiser", beta))
+    return scipy.signal.firwin(numtaps, 0.5 * (e + 1.0 / q), window=("kaiser", beta))
 
 
 class TrialError(ValueError):
     """A trial (file or record) is invalid; the message says what and how to fix it."""
+
+
+def _edge(band: float | None, new_dt: float) -> float:
+    """Pass-band edge as a fraction of the new rate (default BANDWIDTH_PER_RATE)."""
+    if band is None:
+        return BANDWIDTH_PER_RATE
+    edge = float(band) * new_dt
+    if not 0 < edge < 0.5:
+        raise TrialError(f"band {band!r} Hz must lie between 0 and the new Nyquist frequency "
+                         f"{0.5 / new_dt:.4g} Hz")
+    return edge
 
 
 def _allowed_units_text() -> str:
@@ -432,7 +451,7 @@ class Trial:
             )
         return self._derived(self.times[keep], self.values[keep], f"window [{a!r}, {b!r}] s")
 
-    def decimate(self, factor: int) -> Trial:
+    def decimate(self, factor: int, band: float | None = None) -> Trial:
         """Low-pass filter and keep every ``factor``-th sample (uniform sampling only).
 
         Uses the zero-phase Kaiser FIR of :func:`anti_alias_taps` (pass band to the
@@ -447,6 +466,9 @@ class Trial:
         ----------
         factor : int
             Decimation factor q >= 1 (1 returns the trial unchanged).
+        band : float, optional
+            Pass band of the filter in Hz (below the new Nyquist frequency); default the
+            new rate / 2.56. The result's :attr:`sensor_band` is at most this.
 
         Returns
         -------
@@ -470,10 +492,13 @@ class Trial:
                 f"{UNIFORM_RTOL:g} of the mean step); these stamps are not uniform. Use "
                 "Trial.resample(dt) for non-uniform stamps"
             )
-        return self._decimated(self.times, self.values, q, f"decimate {q} (FIR, zero phase)")
+        edge = _edge(band, q * self.dt)
+        return self._decimated(self.times, self.values, q, f"decimate {q} (FIR, zero phase)",
+                               edge)
 
-    def _decimated(self, t: np.ndarray, y: np.ndarray, q: int, step: str) -> Trial:
-        taps = anti_alias_taps(q)
+    def _decimated(self, t: np.ndarray, y: np.ndarray, q: int, step: str,
+                   edge: float = BANDWIDTH_PER_RATE) -> Trial:
+        taps = anti_alias_taps(q, edge)
         half = taps.size // 2
         # Zero phase: tap `half` sits on the output sample (odd, symmetric filter).
         yd = scipy.signal.fftconvolve(y, taps)[half : half + y.size][::q]
@@ -488,10 +513,11 @@ class Trial:
         idx = k[keep]
         out = self._derived(t[idx * q], yd[idx], step)
         # The decimation filter limits the band to that of the new rate.
-        band = min(self.sensor_band, BANDWIDTH_PER_RATE / (q * float(np.median(np.diff(t)))))
+        band = min(self.sensor_band, edge / (q * float(np.median(np.diff(t)))))
         return dataclasses.replace(out, bandwidth=band)
 
-    def resample(self, dt: float, max_gap: float | None = None) -> Trial:
+    def resample(self, dt: float, max_gap: float | None = None,
+                 band: float | None = None) -> Trial:
         """Resample onto a uniform grid of step ``dt`` (s) with an anti-alias filter.
 
         For non-uniform stamps (e.g. software-timed accelerometers): the signal is
@@ -515,6 +541,8 @@ class Trial:
             every output sample whose interpolation or anti-alias filter reaches into
             one is dropped (the output is then a uniform grid with holes, which the
             forward model simulates on the full grid). None keeps every sample.
+        band : float, optional
+            Pass band of the anti-alias filter in Hz, as for :meth:`decimate`.
 
         Returns
         -------
@@ -547,7 +575,9 @@ class Trial:
             f"resample dt={dt!r} s (cubic-spline interpolation to {h!r} s, largest native gap "
             f"{float(steps.max())!r} s, then FIR decimation by {q})"
         )
-        out = self._derived(grid, fine, step) if q == 1 else self._decimated(grid, fine, q, step)
+        edge = _edge(band, dt)
+        out = (self._derived(grid, fine, step) if q == 1
+               else self._decimated(grid, fine, q, step, edge))
         if max_gap is None:
             return out
         if isinstance(max_gap, bool) or not isinstance(max_gap, (int, float)) or not max_gap > 0:
@@ -558,7 +588,7 @@ class Trial:
         # Output k depends on the data within +- reach of it: the decimation FIR's half
         # length (see _decimated) plus the spline's, whose error from a gap decays by
         # 2 - sqrt(3) = 0.27 per knot (de Boor 2001, ch. V): 1e-6 after 10 stamps.
-        reach = h * (0 if q == 1 else anti_alias_taps(q).size // 2) + 10 * med
+        reach = h * (0 if q == 1 else anti_alias_taps(q, edge).size // 2) + 10 * med
         a, b = self.times[gaps], self.times[gaps + 1]
         tau = out.times
         touched = np.searchsorted(a, tau + reach) - np.searchsorted(b, tau - reach, side="right")

@@ -18,6 +18,7 @@ from bayesbeam.physics.fem import assemble
 from bayesbeam.trials.io import read_trial, write_trial
 from bayesbeam.trials.preprocess import (
     MAX_GAP_STEPS,
+    RATE_PER_BAND,
     SETTLE_S,
     PreprocessError,
     apply,
@@ -25,7 +26,7 @@ from bayesbeam.trials.preprocess import (
     prepare,
 )
 from bayesbeam.trials.synthetic import simulate_sensor
-from bayesbeam.trials.trial import BANDWIDTH_PER_RATE, Trial, TrialError, anti_alias_taps
+from bayesbeam.trials.trial import Trial, TrialError, anti_alias_taps
 
 # gamma = 0.1 kg/(m s): zeta1 = gamma / (2 rhoA omega1) = 1.0 % (physics.md §2).
 E_TRUE, GAMMA_TRUE, OFFSET, NOISE, T_RELEASE = 6.2e10, 0.1, 0.4, 0.05, 0.3
@@ -85,10 +86,10 @@ def test_raw_record_choices(raw_record):
     assert pre.end == trial.times[-1]  # still moving at the end (zeta1 ~ 1 %)
     assert pre.f1 == pytest.approx(f[0], rel=0.02)  # a 4 s record: 0.25 Hz bins, padded
     assert pre.modes_seen[1] == pytest.approx(f[1], rel=0.01)
-    # Budget 2000 samples over ~3.9 s: band cap 0.39 * 2000 / 3.9 = 200 Hz, so mode 3
+    # Budget 2000 samples over ~3.9 s at 4 samples per band Hz: band cap 128 Hz, so mode 3
     # (202 Hz) is left out and the band is 1.25 f2.
     assert pre.band == pytest.approx(1.25 * pre.modes_seen[1])
-    assert pre.rate == pytest.approx(pre.band / BANDWIDTH_PER_RATE)
+    assert pre.rate == pytest.approx(RATE_PER_BAND * pre.band)
     assert all(fd > pre.band for fd in pre.modes_dropped)
     assert pre.initial == "modes:2"  # model modes below the band
     assert pre.offset == "fit" and pre.model_name("viscous") == "viscous+sensor_offset"
@@ -103,7 +104,8 @@ def test_raw_record_choices(raw_record):
     med = float(np.median(np.diff(trial.window(pre.start, pre.end).times)))
     assert MAX_GAP_STEPS * med < 3e-3  # the four gaps count as gaps
     q = int(np.ceil(0.99 * dt / med))
-    reach = dt / q * (anti_alias_taps(q).size // 2) + 10 * med  # FIR + spline (resample)
+    edge = pre.band * dt  # the filter's pass band, as a fraction of the new rate
+    reach = dt / q * (anti_alias_taps(q, edge).size // 2) + 10 * med  # FIR + spline
     for a, b in truth["gaps"]:
         if a > pre.start:
             assert not np.any((out.times > a - 0.999 * reach) & (out.times < b + 0.999 * reach))
