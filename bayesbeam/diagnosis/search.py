@@ -113,12 +113,15 @@ class _Engine:
             nyq = 0.5 / float(np.median(np.diff(t)))
             f, amp = periodogram(t, y)
             guesses = [f1]
-            # Uniform-cantilever ratios f2/f1 = 6.267, f3/f1 = 17.55 (physics.md §4).
-            for ratio in (6.267, 17.55):
-                g = spectral_peak(f, amp, f1 * ratio, rel_window=0.15)
+            # The modes the preprocessing saw on the raw stamps, where it ran; else the
+            # spectrum near the uniform-cantilever ratios f2/f1 = 6.267, f3/f1 = 17.55
+            # (physics.md §4).
+            seen = self.trial.meta.get("modes_seen_hz") or {}
+            for k, ratio in ((2, 6.267), (3, 17.55)):
+                g = seen.get(str(k)) or spectral_peak(f, amp, f1 * ratio, rel_window=0.15)
                 if g is None or g > 0.8 * nyq:
                     break
-                guesses.append(g)
+                guesses.append(float(g))
             est = damped_sinusoids(t, y, guesses)
             feats: dict[str, float] = {"f1": f1}
             for k, e in enumerate(est[:2], start=1):
@@ -127,8 +130,15 @@ class _Engine:
                     feats[f"a{k}"] = e.amplitude
                     if e.decay_rate > 0:
                         feats[f"sigma{k}"] = e.decay_rate
+            if "f2" not in feats and len(guesses) > 1:
+                # The free-decay fit may miss mode 2 on a long record (it decays within
+                # a second or two of many): its spectral peak still places it, to the
+                # periodogram's resolution (1/(4 T) with the zero padding).
+                feats["f2"] = guesses[1]
             if len(est) > 2 and est[2] is not None and "f2" in feats:
                 feats["f3"] = est[2].frequency  # places an added mass along the span
+            elif len(guesses) > 2 and "f2" in feats:
+                feats["f3"] = guesses[2]
             if est[0] is None:
                 feats.pop("f2", None)  # a ratio needs both
                 feats.pop("f3", None)

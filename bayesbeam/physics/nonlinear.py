@@ -564,6 +564,9 @@ class NonlinearForward:
             moving = np.union1d(moving, k1[pcoef != 0])
         cols = np.append(moving, K) if use_phase else moving
         Km = moving.size
+        if cols.size == 0:  # nothing moves (forces too weak to change ρ in float)
+            empty = np.zeros((b, self._tau.size, 0))
+            return empty, empty, empty, empty, moving
         z_g, dz_g = z_g[:, :, cols], dz_g[:, :, cols]
         r0, r1 = z_g[:-1], z_g[1:]  # (N, b, C)
         d0, d1 = dz_g[:-1] * h[None, :, None], dz_g[1:] * h[None, :, None]

@@ -130,6 +130,8 @@ class Preprocessing:
         Frequencies (Hz) of the bending modes seen in the record, mode 1 first.
     mode_strength : tuple of float
         Their spectral peak over the median power within a factor 2 in frequency.
+    mode_numbers : tuple of int
+        Their mode numbers (1 for the first bending mode).
     modes_dropped : tuple of float
         Seen modes above the analysis band (removed from data and model), Hz.
     initial : str
@@ -165,6 +167,7 @@ class Preprocessing:
     f1: float
     modes_seen: tuple[float, ...]
     mode_strength: tuple[float, ...]
+    mode_numbers: tuple[int, ...]
     modes_dropped: tuple[float, ...]
     initial: str
     initial_how: str
@@ -180,7 +183,8 @@ class Preprocessing:
     def to_json_dict(self) -> dict[str, Any]:
         """Return the record as JSON-ready dict (the ``preprocessing`` key of the outputs)."""
         out = dataclasses.asdict(self)
-        for k in ("modes_seen", "mode_strength", "modes_dropped", "given", "loader"):
+        for k in ("modes_seen", "mode_strength", "mode_numbers", "modes_dropped", "given",
+                  "loader"):
             out[k] = list(out[k])
         out["units"] = "s for times, Hz for rate, band and frequencies"
         return out
@@ -244,8 +248,8 @@ def _nominal_f1(trial: Trial) -> float | None:
 
 
 def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
-                ) -> tuple[float, list[float], list[float]]:
-    """Mode-1 frequency, the bending modes seen (Hz) and their peak-to-floor power ratios."""
+                ) -> tuple[float, list[float], list[float], list[int]]:
+    """Return f1, the bending modes seen (Hz), their peak/floor ratios and mode numbers."""
     f, amp = periodogram(t, y)
     power = amp**2
     f_lo = 3.0 / float(t[-1] - t[0])
@@ -260,7 +264,7 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
         )
     ratios = _ratios(trial)
     f1 = float(f[sel][np.argmax(power[sel])])
-    seen, strength = [], []
+    seen, strength, numbers = [], [], []
     for k in range(ratios.size):
         fk = f1 * ratios[k]
         if fk * (1 - MODE_WINDOW) >= band:
@@ -274,7 +278,8 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
         if k == 0 or ratio > PEAK_FACTOR:
             seen.append(float(f[i]))
             strength.append(ratio)
-    return f1, seen, strength
+            numbers.append(k + 1)
+    return f1, seen, strength, numbers
 
 
 def _noise_sd(t: np.ndarray, y: np.ndarray, f1: float) -> tuple[float, float]:
@@ -378,7 +383,7 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
             f"the analysis span from {start:.4f} s holds {np.count_nonzero(span)} samples "
             f"(record {t[0]:.4f}-{t[-1]:.4f} s); choose start/end inside the record"
         )
-    f1, seen, strength = _seen_modes(trial, t[span], y[span], native_band)
+    f1, seen, strength, numbers = _seen_modes(trial, t[span], y[span], native_band)
     noise_sd, block = _noise_sd(t[span], y[span], f1)
     if end is not None:
         end, end_how = float(end), "given"
@@ -445,7 +450,7 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
     return Preprocessing(
         start=start, end=float(end), start_how=start_how, end_how=end_how, release=release,
         rate=rate, band=float(band), rate_how=rate_how, f1=f1, modes_seen=tuple(seen),
-        mode_strength=tuple(strength),
+        mode_strength=tuple(strength), mode_numbers=tuple(numbers),
         modes_dropped=dropped, initial=str(initial), initial_how=initial_how,
         offset=str(offset), offset_how=offset_how, noise_sd=noise_sd,
         n_samples_in=int(t.size),
@@ -488,7 +493,12 @@ def apply(trial: Trial, pre: Preprocessing) -> Trial:
                 out = out.resample(1.0 / pre.rate, max_gap=MAX_GAP_STEPS * med, band=band)
     except TrialError as err:
         raise PreprocessError(f"cannot prepare {trial.name!r} as planned: {err}") from None
-    out = dataclasses.replace(out, bandwidth=min(out.sensor_band, pre.band))
+    # The modes seen on the raw stamps travel with the analysis record: estimates on a
+    # resampled grid with holes are less reliable (the holes leak into any spectrum),
+    # and the diagnosis starts its searches from them.
+    seen = {str(k): f for k, f in zip(pre.mode_numbers, pre.modes_seen, strict=True)}
+    out = dataclasses.replace(out, bandwidth=min(out.sensor_band, pre.band),
+                              meta={**out.meta, "modes_seen_hz": seen})
     if pre.initial.startswith("modes:") and out.t0 < out.times[0]:
         t0 = float(out.times[0])
         source = dict(out.source)

@@ -476,3 +476,16 @@ def test_signatures_drag_grows_with_amplitude_friction_falls(quantity):
     # Coulomb friction: the amplitude falls linearly in time (constant decrement).
     dec = -np.diff(amp)
     np.testing.assert_allclose(dec, dec.mean(), rtol=0.05)
+
+
+def test_forces_too_weak_to_move_an_envelope_give_the_linear_signal():
+    # A drag so small that no envelope leaves 1.0 in floating point (the lower end of a
+    # wide prior): no mode moves; this crashed the slow flow's interpolation (reshape of
+    # an empty set of modes) in a whole-record diagnosis.
+    t = np.arange(200) / 256
+    f = NonlinearForward(uniform(), "viscous+drag+amplitude_stiffness", t, n_elements=6)
+    p = {"E": 70e9, "gamma": 0.01, "w0": 0.01}
+    tiny = f.simulate({**p, "drag": 1e-300, "f1_slope": 0.0})
+    lin = f.simulate({**p, "drag": 0.0, "f1_slope": 0.0})
+    assert tiny.valid[0]
+    np.testing.assert_array_equal(tiny.y, lin.y)

@@ -111,6 +111,9 @@ def test_raw_record_choices(raw_record):
             assert not np.any((out.times > a - 0.999 * reach) & (out.times < b + 0.999 * reach))
     assert out.times.size < np.floor((pre.end - pre.start) * pre.rate)  # holes
     assert "dropped" in out.source["processing"][-2]
+    # The modes seen on the raw stamps travel with the record (for the diagnosis).
+    assert out.meta["modes_seen_hz"]["2"] == pytest.approx(f[1], rel=0.01)
+    assert pre.mode_numbers[:2] == (1, 2)
     js = pre.to_json_dict()
     assert js["initial"] == "modes:2" and js["release"] == pre.release
 
