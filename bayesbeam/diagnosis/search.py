@@ -130,15 +130,8 @@ class _Engine:
                     feats[f"a{k}"] = e.amplitude
                     if e.decay_rate > 0:
                         feats[f"sigma{k}"] = e.decay_rate
-            if "f2" not in feats and len(guesses) > 1:
-                # The free-decay fit may miss mode 2 on a long record (it decays within
-                # a second or two of many): its spectral peak still places it, to the
-                # periodogram's resolution (1/(4 T) with the zero padding).
-                feats["f2"] = guesses[1]
             if len(est) > 2 and est[2] is not None and "f2" in feats:
                 feats["f3"] = est[2].frequency  # places an added mass along the span
-            elif len(guesses) > 2 and "f2" in feats:
-                feats["f3"] = guesses[2]
             if est[0] is None:
                 feats.pop("f2", None)  # a ratio needs both
                 feats.pop("f3", None)
