@@ -10,7 +10,6 @@ JSON record with ``--json``. See :mod:`bayesbeam.comparison.compare` for the rul
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -150,8 +149,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_steps < 1 or args.loo_draws < 2 or not args.target_ess > 0:
         raise CompareCLIError("--max-steps, --target-ess must be positive, --loo-draws >= 2")
     opts.check_options(args, CompareCLIError, *opts.PREPROCESSING)
-    trial, pre = opts.prepare_trial(
-        args, CompareCLIError, say=lambda s: print(s, file=sys.stderr, flush=True))
+    trial, pre = opts.prepare_trial(args, CompareCLIError, say=opts.say)
     odds = parse_prior_odds(args.prior_odds, models)
     models = [pre.model_name(m) for m in models]
     if odds is not None:

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -129,11 +128,6 @@ def _predictions(trial: Any, d: Any, seed: int) -> dict[str, Any]:
     return out
 
 
-def _say(line: str) -> None:
-    """Progress and preprocessing lines go to stderr (stdout stays the report or JSON)."""
-    print(line, file=sys.stderr, flush=True)
-
-
 def run(args: argparse.Namespace) -> int:
     """Execute ``bayesbeam diagnose``.
 
@@ -155,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
 
     cands = _check(args)
     parse_model(args.baseline)  # a bad name fails before the record is read
-    trial, pre = opts.prepare_trial(args, DiagnoseCLIError, say=_say)
+    trial, pre = opts.prepare_trial(args, DiagnoseCLIError, say=opts.say)
     model = parse_model(pre.model_name(args.baseline))
     priors = None
     if args.priors is not None:
@@ -166,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
         d = diagnose(
             trial, model, max_rounds=args.max_rounds,
             candidates=tuple(cands) if cands else CATALOGUE, initial=pre.initial,
-            priors=priors, progress=_say, **opts.fit_settings(args),
+            priors=priors, progress=opts.say, **opts.fit_settings(args),
         )
     record = d.to_json_dict()
     record["preprocessing"] = pre.to_json_dict()
@@ -177,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
         if sig is not None:
             fig = plot_signatures(sig, title=f"{trial.name}: {sig.model} ({label})")
             fig.savefig(outdir / f"signatures_{label}.png", dpi=110)
-    write_model_overlays(trial, _predictions(trial, d, args.seed), outdir, say=_say)
+    write_model_overlays(trial, _predictions(trial, d, args.seed), outdir, say=opts.say)
     if args.json:
         print(text)
     else:

@@ -115,10 +115,6 @@ def _check_args(args: argparse.Namespace) -> None:
     opts.check_options(args, FitCLIError, *opts.PREPROCESSING)
 
 
-def _say(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
-
-
 def _run_record(args: argparse.Namespace, trial: Any, priors: Any, model: str,
                 initial: str) -> dict[str, Any]:
     """Collect the options that must not change between a run and its ``--resume``."""
@@ -242,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.stats.sampling import NotConvergedWarning
 
     parse_model(args.model)  # a bad name fails before the record is read
-    trial, pre = opts.prepare_trial(args, FitCLIError, say=_say)
+    trial, pre = opts.prepare_trial(args, FitCLIError, say=opts.say)
     model = parse_model(pre.model_name(args.model))
     initial = pre.initial
     priors = None
@@ -303,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
     resid = np.asarray(trial.values) - np.median(y_model, axis=0)
     plot_residual_spectrum(trial, resid, outdir / "residual_spectrum.png",
                            mode_freqs_hz=_mode_freqs(problem, result))
-    write_model_overlays(trial, {model.name: np.median(y_model, axis=0)}, outdir, say=_say)
+    write_model_overlays(trial, {model.name: np.median(y_model, axis=0)}, outdir, say=opts.say)
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["outdir"] = str(outdir)
 

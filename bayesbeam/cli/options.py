@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -43,6 +44,7 @@ __all__ = [
     "fit_settings",
     "initial_condition",
     "prepare_trial",
+    "say",
     "print_json",
 ]
 
@@ -286,6 +288,16 @@ def prepare_trial(args: argparse.Namespace, error: type[Exception] = ValueError,
         for line in pre.lines():
             say(f"preprocessing: {line}")
     return out, pre
+
+
+def say(line: str) -> None:
+    """Print a progress or preprocessing line on stderr (stdout stays the result or JSON).
+
+    Parameters
+    ----------
+    line : str
+    """
+    print(line, file=sys.stderr, flush=True)
 
 
 def print_json(record: Any) -> None:

@@ -158,13 +158,9 @@ def record_f1(trial: Trial) -> float:
     -------
     float
     """
-    near = None
-    beam = trial.beam
-    if beam.E is not None:
-        fe = assemble(beam, 16, root_dof=False)
-        lam = sla.eigh(fe.K, fe.M, eigvals_only=True, subset_by_index=[0, 0])[0]
-        near = float(np.sqrt(lam * beam.E) / (2 * np.pi))
-    return first_frequency(trial.times, trial.values, near=near)
+    from bayesbeam.trials.preprocess import nominal_f1
+
+    return first_frequency(trial.times, trial.values, near=nominal_f1(trial))
 
 
 def reference_modulus(trial: Trial, *, n_elements: int = 16) -> float:

@@ -75,6 +75,7 @@ __all__ = [
     "PreprocessError",
     "SETTLE_S",
     "apply",
+    "nominal_f1",
     "plan",
     "prepare",
 ]
@@ -239,7 +240,19 @@ def _ratios(trial: Trial) -> np.ndarray:
     return np.sqrt(lam / lam[0])
 
 
-def _nominal_f1(trial: Trial) -> float | None:
+def nominal_f1(trial: Trial) -> float | None:
+    """First natural frequency (Hz) of the trial's beam at its nominal E, or None.
+
+    Rigid clamp, declared tip and point masses, 16 elements; None without a nominal E.
+
+    Parameters
+    ----------
+    trial : Trial
+
+    Returns
+    -------
+    float or None
+    """
     if trial.beam.E is None:
         return None
     fe = assemble(trial.beam, 16, root_dof=False)
@@ -253,7 +266,7 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
     f, amp = periodogram(t, y)
     power = amp**2
     f_lo = 3.0 / float(t[-1] - t[0])
-    nominal = _nominal_f1(trial)
+    nominal = nominal_f1(trial)
     sel = (f > f_lo) & (f < band)
     if nominal is not None:
         sel &= (f > 0.5 * nominal) & (f < 2.0 * nominal)
