@@ -17,7 +17,10 @@
   :mod:`bayesbeam.diagnosis` and :mod:`bayesbeam.jobs`);
 * :func:`file_sha256`: the SHA-256 of a file's bytes (provenance and cache keys);
 * :func:`read_toml`: a TOML file as a dict, with an error that names the file, says
-  what is wrong and how to fix it, in the caller's error class.
+  what is wrong and how to fix it, in the caller's error class;
+* :func:`atomic_path` and :func:`write_text_atomic`: write a file under a temporary
+  name in its folder and rename it into place, so that an interrupted or failed write
+  (disk full, kill -9) leaves the previous file whole, never a truncated one.
 
 Only the standard library is imported at import time (numpy when a value needs it).
 This module imports nothing from bayesbeam: every layer may use it.
@@ -25,17 +28,21 @@ This module imports nothing from bayesbeam: every layer may use it.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import importlib
 import importlib.metadata
 import math
+import os
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "SCHEMA_VERSION",
+    "atomic_path",
     "distribution_version",
     "file_sha256",
     "finite_json",
@@ -44,7 +51,13 @@ __all__ = [
     "lazy_exports",
     "one_blas_thread",
     "read_toml",
+    "write_text_atomic",
 ]
+
+
+#: Version of the layout of the JSON outputs (``schema_version`` in each); raised when a
+#: key changes meaning or goes away (new keys may appear without it).
+SCHEMA_VERSION = 1
 
 
 def one_blas_thread() -> Any:
@@ -259,9 +272,66 @@ def read_toml(
             return tomllib.load(fh)
     except FileNotFoundError:
         raise error(f"cannot read {what} {path}: not found; check the path") from None
+    except UnicodeDecodeError as err:
+        raise error(
+            f"{what} {path} is not UTF-8 text (byte {err.object[err.start:err.start + 1]!r} at "
+            f"position {err.start}); save it as UTF-8"
+        ) from None
     except tomllib.TOMLDecodeError as err:
         raise error(
             f"{what} {path} is not valid TOML ({err}); fix the syntax there (https://toml.io)"
         ) from None
     except OSError as err:
         raise error(f"cannot read {what} {path}: {err.strerror or err}") from None
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success rename it to ``path``.
+
+    The temporary file keeps ``path``'s suffix (matplotlib and netCDF writers choose
+    their format by it) and lives in the same folder, so the final ``os.replace`` is
+    atomic on POSIX and Windows: readers see the old file or the new one, never a
+    partial one. On any exception the temporary file is removed and the exception
+    propagates; the previous ``path`` is untouched.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to (re)write.
+
+    Yields
+    ------
+    Path
+        Where the caller writes the new content.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        yield tmp
+        if tmp.exists():
+            with open(tmp, "rb") as fh:  # the bytes reach the disk before the rename
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+    except OSError as err:
+        if err.errno is None or (err.filename and Path(err.filename) != tmp):
+            raise
+        # Name the file the user knows, not the temporary one (or none, from a library).
+        raise OSError(err.errno, os.strerror(err.errno), str(path)) from err
+    finally:
+        with contextlib.suppress(FileNotFoundError):  # gone when renamed: nothing to clean
+            tmp.unlink()
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` through :func:`atomic_path`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to (re)write.
+    text : str
+        Its whole content.
+    """
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")

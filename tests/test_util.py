@@ -57,3 +57,25 @@ def test_read_toml_reads_and_raises_the_callers_error(tmp_path):
         read_toml(bad, what="beam file", error=_MyError)
     with pytest.raises(ValueError, match=r"cannot read TOML file .*: "):
         read_toml(tmp_path)  # a folder: an OSError other than not-found
+
+
+def test_read_toml_names_a_file_that_is_not_utf8(tmp_path):
+    from bayesbeam._util import read_toml
+
+    path = tmp_path / "p.toml"
+    path.write_bytes(b'x = "caf\xe9"\n')  # Latin-1, as an old editor saves it
+    with pytest.raises(ValueError, match=r"prior file .*p\.toml is not UTF-8 text .*position 8"):
+        read_toml(path, what="prior file")
+
+
+def test_atomic_path_keeps_the_old_file_when_a_write_fails(tmp_path):
+    from bayesbeam._util import atomic_path, write_text_atomic
+
+    path = tmp_path / "summary.json"
+    write_text_atomic(path, "old\n")
+    with pytest.raises(OSError, match="summary.json"):
+        with atomic_path(path) as tmp:
+            tmp.write_text("half")
+            raise OSError(28, "No space left on device")  # as a full disk's write
+    assert path.read_text() == "old\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]  # no temporary left

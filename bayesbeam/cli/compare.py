@@ -138,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
     int
         Exit status 0 once every model is fitted and the files are written.
     """
+    from bayesbeam.cli.outdir import stamp
     from bayesbeam.comparison.compare import compare
     from bayesbeam.physics.models import parse_model
     models = [parse_model(m.strip()).name for m in str(args.models).split(",") if m.strip()]
@@ -166,9 +167,10 @@ def run(args: argparse.Namespace) -> int:
         initial=pre.initial,
         **opts.fit_settings(args),
     )
-    result.save(outdir, extra={"preprocessing": pre.to_json_dict()})
-    if args.json:
-        opts.print_json({**result.to_json_dict(), "preprocessing": pre.to_json_dict()})
+    extra = {"preprocessing": pre.to_json_dict(), **stamp(args, trial)}
+    result.save(outdir, extra=extra)
+    if args.json:  # the same record as comparison.json
+        opts.print_json({**result.to_json_dict(), **extra})
     else:
         print(result)
         print(f"\nwrote {outdir}/comparison.{{json,txt,html,png}} and one folder per model")

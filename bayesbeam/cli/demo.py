@@ -69,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.jobs.demo import run_demo
 
     rep = run_demo(args.outdir, jobs=args.jobs, quick=args.quick, scheduler=args.scheduler,
-                   data_dir=args.data, force=args.force)
+                   data_dir=args.data, force=args.force,
+                   run_id=getattr(args, "run_id", None))
     if getattr(args, "json", False):
         print(json.dumps(rep.record, indent=2, allow_nan=False, default=str))
         return 0

@@ -32,7 +32,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import one_blas_thread
+from bayesbeam._util import atomic_path, one_blas_thread, write_text_atomic
 from bayesbeam.cli import options as opts
 from bayesbeam.inference.settings import DIAGNOSIS_DEFAULTS
 
@@ -141,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
     int
         Exit status 0.
     """
+    from bayesbeam.cli.outdir import stamp
     from bayesbeam.diagnosis.diagnose import CATALOGUE, diagnose
     from bayesbeam.diagnosis.signatures import plot_signatures
     from bayesbeam.physics.models import parse_model
@@ -164,13 +165,15 @@ def run(args: argparse.Namespace) -> int:
         )
     record = d.to_json_dict()
     record["preprocessing"] = pre.to_json_dict()
+    record.update(stamp(args, trial))
     text = json.dumps(record, indent=2, allow_nan=False)
-    (outdir / "diagnosis.json").write_text(text + "\n", encoding="utf-8")
-    (outdir / "report.md").write_text(d.narrative(), encoding="utf-8")
+    write_text_atomic(outdir / "diagnosis.json", text + "\n")
+    write_text_atomic(outdir / "report.md", d.narrative())
     for label, sig in (("baseline", d.signatures_before), ("final", d.signatures_after)):
         if sig is not None:
             fig = plot_signatures(sig, title=f"{trial.name}: {sig.model} ({label})")
-            fig.savefig(outdir / f"signatures_{label}.png", dpi=110)
+            with atomic_path(outdir / f"signatures_{label}.png") as tmp:
+                fig.savefig(tmp, dpi=110)
     write_model_overlays(trial, _predictions(trial, d, args.seed), outdir, say=opts.say)
     if args.json:
         print(text)

@@ -228,12 +228,15 @@ def run(args: argparse.Namespace) -> int:
     _check_args(args)
     import numpy as np
 
+    from bayesbeam._util import write_text_atomic
+    from bayesbeam.cli.outdir import stamp
     from bayesbeam.inference.fit import fit
     from bayesbeam.inference.predictive import posterior_predictive
     from bayesbeam.inference.problem import Problem, default_priors
     from bayesbeam.physics.models import parse_model
     from bayesbeam.report.amplitude_plots import write_model_overlays
     from bayesbeam.report.plots import plot_fit, plot_residual_spectrum
+    from bayesbeam.stats.checkpoint import saved_steps
     from bayesbeam.stats.priors import PriorSet
     from bayesbeam.stats.sampling import NotConvergedWarning
 
@@ -249,11 +252,11 @@ def run(args: argparse.Namespace) -> int:
     record = _run_record(args, trial, priors, model.name, initial)
     if args.resume:
         _check_resume(outdir, record)
+        saved_steps(outdir / "chain.h5")  # a damaged checkpoint fails now, not after the MAP
     outdir.mkdir(parents=True, exist_ok=True)
-    (outdir / "run.json").write_text(
-        json.dumps({"record": record, "argv": sys.argv[1:]}, indent=2) + "\n",
-        encoding="utf-8",
-    )
+    run_id = getattr(args, "run_id", None)
+    write_text_atomic(outdir / "run.json", json.dumps(
+        {"record": record, "argv": sys.argv[1:], "run_id": run_id}, indent=2) + "\n")
     problem = Problem(trial, model, priors, n_elements=args.elements, initial=initial)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
@@ -285,13 +288,13 @@ def run(args: argparse.Namespace) -> int:
         prior_samples=PRIOR_DRAWS,
     )
     payload = result.to_json_dict()
+    payload.update(stamp(args, provenance=False))  # the fit's own provenance is kept
     payload["preprocessing"] = pre.to_json_dict()
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["posterior_nc_draws"] = int(groups["thin"].chain.nsteps * groups["thin"].chain.nwalkers)
     # summary.json describes the full chain (posterior.nc holds the thinned draws).
-    (outdir / "summary.json").write_text(
-        json.dumps(payload, indent=2, allow_nan=False) + "\n", encoding="utf-8"
-    )
+    write_text_atomic(outdir / "summary.json", json.dumps(payload, indent=2, allow_nan=False)
+                      + "\n")
     result.plot_corner(outdir / "corner.png", truths=_truths(trial, problem))
     result.plot_trace(outdir / "trace.png")
     _, y_model, y_rep = posterior_predictive(problem, result, PPC_DRAWS, rng)

@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import one_blas_thread
+from bayesbeam._util import one_blas_thread, write_text_atomic
 from bayesbeam.cli import options as opts
 
 __all__ = ["InspectCLIError", "register", "run", "summary_text"]
@@ -159,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
     int
         Exit status 0.
     """
+    from bayesbeam.cli.outdir import stamp
     from bayesbeam.report.amplitude_plots import write_amplitude_figures
     from bayesbeam.trials.amplitude import amplitude_curves, tip_factor
     from bayesbeam.trials.io import read_trial
@@ -184,11 +185,12 @@ def run(args: argparse.Namespace) -> int:
     record = {"trial": trial.name, "n_samples": int(trial.times.size),
               "preprocessing": {**span, "note": "raw stamps in the span (no resampling)"},
               **curves.to_json_dict(),
-              "wall_time_s": round(time.perf_counter() - tic, 3)}
+              "wall_time_s": round(time.perf_counter() - tic, 3),
+              **stamp(args, trial)}
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     text = json.dumps(record, indent=2, allow_nan=False)
-    (outdir / "inspect.json").write_text(text + "\n", encoding="utf-8")
+    write_text_atomic(outdir / "inspect.json", text + "\n")
     write_amplitude_figures(curves, outdir, title=trial.name)
     from bayesbeam.report.html import write_report
 

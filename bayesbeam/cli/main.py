@@ -1,22 +1,47 @@
 """Command-line interface: ``bayesbeam COMMAND ...`` (also ``python -m bayesbeam``).
 
-Every command takes ``--json`` to print machine-readable output. Input errors print a
-one-line message saying what is wrong and exit with status 2 (``--debug`` shows the
-traceback).
+Every command takes ``--json`` to print machine-readable output (stdout holds only
+that; progress, notes and warnings go to stderr, one line each). Every failure ends in
+one line on stderr, ``bayesbeam COMMAND: error: ...``, that names the file or value and
+the fix, and one of these exit statuses (:data:`EXIT`):
+
+====  ===========================================================================
+0     success (a run that did not converge or is not adequate says so on stderr)
+1     internal error: a bug. The line says where the full traceback was written
+2     bad input: options, trial, beam or prior files, data the checks refuse, a damaged
+      checkpoint given to ``--resume``
+3     input/output failure: disk full, file too large, permissions
+4     the output folder is in use by another run (see :mod:`bayesbeam.cli.outdir`)
+5     out of memory
+130   interrupted (Ctrl-C); finished work is kept and ``--resume`` continues it
+====  ===========================================================================
+
+``--debug`` re-raises instead, with Python's traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import datetime as _dt
+import errno
 import json
+import os
 import sys
+import tempfile
+import traceback
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from bayesbeam.cli import options as opts
 
-__all__ = ["main"]
+__all__ = ["EXIT", "main"]
+
+#: Exit statuses of :func:`main` (the module docstring says when each is used).
+EXIT = {"ok": 0, "internal": 1, "input": 2, "io": 3, "busy": 4, "memory": 5,
+        "interrupted": 130}
 
 
 class CLIError(ValueError):
@@ -48,19 +73,40 @@ def _cmd_modes(args: argparse.Namespace) -> int:
     from bayesbeam.physics.beam import Beam
     from bayesbeam.physics.forward import modal_properties
 
+    if args.n_modes < 1:
+        raise CLIError(f"--n-modes must be a positive integer (how many modes to print), "
+                       f"got {args.n_modes}")
+    opts.check_options(args, CLIError, "elements")
     beam = Beam.from_toml(args.beam)
-    f, z = modal_properties(beam, args.model, _parse_sets(args.set), n_elements=args.elements)
+    f, z, n_over = modal_properties(beam, args.model, _parse_sets(args.set),
+                                    n_elements=args.elements, return_overdamped=True)
     k = min(args.n_modes, f.size)
     lines = [f"{'mode':>4} {'frequency [Hz]':>16} {'damping ratio':>14}"]
     lines += [f"{i + 1:>4} {f[i]:16.6g} {z[i]:14.6g}" for i in range(k)]
-    _emit(args, {"frequencies_hz": f[:k].tolist(), "damping_ratios": z[:k].tolist()},
-          "\n".join(lines))
+    payload: dict[str, Any] = {"frequencies_hz": f[:k].tolist(),
+                               "damping_ratios": z[:k].tolist(), "overdamped_modes": n_over}
+    if n_over:
+        # Without this line a damping above critical would print an empty table.
+        why = ("damping above critical: real eigenvalues, they decay without oscillating "
+               "and have no frequency")
+        if f.size == 0:
+            note = f"all {n_over} modes of the model are overdamped ({why}): none to list"
+        else:
+            verb = "is" if n_over == 1 else "are"
+            note = (f"{n_over} of the model's {n_over + f.size} modes {verb} overdamped "
+                    f"({why}); listed are the {f.size} underdamped ones")
+        payload["note"] = note
+        opts.say(f"note: {note}")
+    _emit(args, payload, "\n".join(lines))
     return 0
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from bayesbeam.trials.synthetic import simulate_trial
 
+    # duration, dt, noise sd, tip deflection and the sample count are checked by
+    # simulate_trial, before it allocates anything.
+    opts.check_options(args, CLIError, "elements", "seed")
     trial = simulate_trial(
         args.beam,
         args.model,
@@ -96,6 +142,10 @@ def _build_parser() -> argparse.ArgumentParser:
         description="Bayesian damping identification for cantilever beams (SI units).",
     )
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    from bayesbeam._util import distribution_version
+
+    p.add_argument("--version", action="version",
+                   version=f"bayesbeam {distribution_version('bayesbeam')}")
     sub = p.add_subparsers(dest="command", required=True)
 
     sp = sub.add_parser("modes", help="natural frequencies and modal damping ratios")
@@ -137,6 +187,57 @@ def _build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_line(message: Any, *_: Any, **__: Any) -> None:
+    """``warnings.showwarning`` of the CLI: ``warning: message`` on stderr, no source line."""
+    print(f"warning: {message}", file=sys.stderr, flush=True)
+
+
+def _write_traceback(command: str) -> Path | None:
+    """Write the current exception's traceback to a file in the temp folder; its path."""
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    try:
+        fd, name = tempfile.mkstemp(prefix=f"bayesbeam-{command}-{stamp}-", suffix=".txt")
+        with open(fd, "w", encoding="utf-8") as fh:
+            fh.write(f"bayesbeam {command}: argv {sys.argv!r}\n\n")
+            fh.write(traceback.format_exc())
+    except OSError:  # nowhere to write it (the disk may be full): the caller prints it
+        return None
+    return Path(name)
+
+
+def _os_error(err: OSError) -> tuple[int, str]:
+    """Exit status and message of an operating-system error (names the file)."""
+    where = f" ({err.filename})" if err.filename else ""
+    # HDF5's messages run over several lines: the system's wording of the errno is enough.
+    what = (os.strerror(err.errno) if err.errno else str(err).splitlines()[0][:200]
+            if str(err) else type(err).__name__)
+    if err.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        return EXIT["io"], (f"{what}{where}: free disk space (or raise the quota) and run "
+                            "again; files written before are whole, and fits continue "
+                            "with --resume")
+    if err.errno == errno.ENAMETOOLONG:
+        return EXIT["input"], f"file name too long{where[:80]}...): use a shorter path"
+    if isinstance(err, FileNotFoundError | IsADirectoryError | NotADirectoryError):
+        return EXIT["input"], f"{what}{where}: check the path"
+    if isinstance(err, PermissionError):
+        return EXIT["io"], f"{what}{where}: check the file's permissions or choose another path"
+    return EXIT["io"], f"{what}{where}"
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the command inside its claimed output folder (see :mod:`bayesbeam.cli.outdir`)."""
+    from bayesbeam.cli.outdir import claim
+
+    outdir = getattr(args, "outdir", None)
+    if outdir is None:
+        args.run_id = None
+        return int(args.func(args))
+    with claim(outdir, args.command, create=args.command != "report",
+               say=opts.say) as run_id:
+        args.run_id = run_id
+        return int(args.func(args))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line.
 
@@ -148,17 +249,47 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        Exit status: 0 success, 2 bad input, 130 interrupted.
+        Exit status, one of :data:`EXIT` (see the module docstring).
     """
     parser = _build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args))
-    except KeyboardInterrupt:
-        print("interrupted; finished work is kept (fits resume with --resume)", file=sys.stderr)
-        return 130
-    except (ValueError, FileNotFoundError, PermissionError, IsADirectoryError) as err:
-        if args.debug:
-            raise
-        print(f"bayesbeam {args.command}: error: {err}", file=sys.stderr)
-        return 2
+    from bayesbeam.cli.outdir import OutdirBusy
+
+    def fail(status: int, message: str) -> int:
+        print(f"bayesbeam {args.command}: error: {message}", file=sys.stderr)
+        return status
+
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line  # restored on exit (tests call main in-process)
+        try:
+            return _run(args)
+        except KeyboardInterrupt:
+            print("interrupted; finished work is kept (fits resume with --resume)",
+                  file=sys.stderr)
+            return EXIT["interrupted"]
+        except BrokenPipeError:  # stdout closed early (e.g. piped into `head`)
+            with contextlib.suppress(OSError):
+                sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - no flush error at exit
+            return EXIT["ok"]
+        except Exception as err:
+            if args.debug:
+                raise
+            if isinstance(err, OutdirBusy):
+                return fail(EXIT["busy"], str(err))
+            if isinstance(err, MemoryError):
+                return fail(EXIT["memory"], "out of memory; analyse fewer samples (--rate, "
+                            "--max-samples, --window) or use fewer --elements")
+            if isinstance(err, UnicodeError):
+                return fail(EXIT["input"], f"a file is not UTF-8 text ({err}); save it as UTF-8")
+            if isinstance(err, ValueError):
+                return fail(EXIT["input"], str(err))
+            if isinstance(err, OSError):
+                return fail(*_os_error(err))
+            path = _write_traceback(args.command)
+            if path is None:
+                traceback.print_exc()
+                where = "the traceback is above"
+            else:
+                where = f"the full traceback is in {path}"
+            return fail(EXIT["internal"], f"internal error ({type(err).__name__}: {err}); "
+                        f"this is a bug: {where}; please report it with that traceback")

@@ -26,11 +26,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bayesbeam.inference.settings import FIT_DEFAULTS
+from bayesbeam.inference.settings import (
+    COSTLY_ELEMENTS,
+    FIT_DEFAULTS,
+    MAX_ELEMENTS,
+    mesh_cost_text,
+)
 
 __all__ = [
     "PREPROCESSING",
@@ -105,6 +111,13 @@ def add_elements_option(
 ) -> None:
     """Add ``--elements`` (Hermite beam elements, default ``FIT_DEFAULTS.n_elements``).
 
+    The value is weighed as it is parsed, before the command reads any file: above
+    :data:`~bayesbeam.inference.settings.MAX_ELEMENTS` the command stops with status 2
+    and one line naming the memory and time the mesh would take
+    (:func:`~bayesbeam.inference.settings.mesh_cost_text`) and the range to use; from
+    :data:`~bayesbeam.inference.settings.COSTLY_ELEMENTS` on, a note on stderr says what
+    it costs. Values below 1 are refused by :func:`check_options`.
+
     Parameters
     ----------
     parser : argparse.ArgumentParser
@@ -112,7 +125,24 @@ def add_elements_option(
     help : str or None
         Help text of the option.
     """
-    parser.add_argument("--elements", type=int, default=FIT_DEFAULTS.n_elements, help=help)
+
+    class Elements(argparse.Action):
+        def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                     values: Any, option_string: str | None = None) -> None:
+            setattr(namespace, self.dest, values)
+            if values > MAX_ELEMENTS:
+                # Refused here, before any file is read: such a mesh asks for gigabytes of
+                # dense matrices (issue 18: 500 elements ran 120 s without a line).
+                parser.exit(2, (
+                    f"{parser.prog}: error: --elements {values} is above the limit of "
+                    f"{MAX_ELEMENTS}: {mesh_cost_text(values)}; use 8 to {COSTLY_ELEMENTS} "
+                    f"(default {FIT_DEFAULTS.n_elements}; fits refine the mesh themselves "
+                    f"where the data need it), at most {MAX_ELEMENTS}\n"))
+            if values >= COSTLY_ELEMENTS:
+                say(f"note: --elements {values}: {mesh_cost_text(values)}")
+
+    parser.add_argument("--elements", type=int, default=FIT_DEFAULTS.n_elements, help=help,
+                        action=Elements)
 
 
 def add_fixed_mesh_option(parser: argparse.ArgumentParser) -> None:
@@ -134,7 +164,8 @@ def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
     """Add the options that fix what :mod:`bayesbeam.trials.preprocess` would choose.
 
     ``--initial``, ``--window``, ``--decimate`` | ``--resample`` | ``--rate``
-    (exclusive), ``--offset``, ``--max-samples`` and ``--as-is``.
+    (exclusive), ``--offset``, ``--max-samples``, ``--as-is``, and ``--skip-checks``
+    (the sanity checks of :func:`prepare_trial` warn instead of refusing).
 
     Parameters
     ----------
@@ -162,6 +193,10 @@ def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--as-is", action="store_true",
                         help="no automatic choices: the record as it is (options above still "
                              "apply)")
+    parser.add_argument("--skip-checks", action="store_true",
+                        help="go on when the sanity checks before sampling find the beam or "
+                             "the record implausible (a density no material has, no "
+                             "oscillation above noise, ...): their errors become warnings")
 
 
 def add_json_option(parser: argparse.ArgumentParser,
@@ -180,12 +215,17 @@ def add_json_option(parser: argparse.ArgumentParser,
 
 #: Range checks of shared options: option dest -> (test of the parsed value, message).
 _CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "elements": (lambda v: v >= 1, "--elements must be a positive integer, got {}"),
+    "elements": (lambda v: 1 <= v <= MAX_ELEMENTS,
+                 f"--elements must be an integer from 1 to {MAX_ELEMENTS} (default "
+                 f"{FIT_DEFAULTS.n_elements}), got {{}}"),
     "seed": (lambda v: v >= 0, "--seed must be a non-negative integer, got {}"),
     "decimate": (lambda v: v is None or v >= 1, "--decimate must be an integer >= 1, got {}"),
-    "resample": (lambda v: v is None or v > 0, "--resample must be a positive step in s, got {}"),
-    "window": (lambda v: v is None or v[0] < v[1], "--window T0 T1 needs T0 < T1, got {}"),
-    "rate": (lambda v: v is None or v > 0, "--rate must be a positive number of Hz, got {}"),
+    "resample": (lambda v: v is None or 0 < v < float("inf"),
+                 "--resample must be a positive finite step in s, got {}"),
+    "window": (lambda v: v is None or -float("inf") < v[0] < v[1] < float("inf"),
+               "--window T0 T1 needs finite times T0 < T1 (s), got {}"),
+    "rate": (lambda v: v is None or 0 < v < float("inf"),
+             "--rate must be a positive finite number of Hz, got {}"),
     "max_samples": (lambda v: v is None or v >= 256,
                     "--max-samples must be an integer >= 256, got {}"),
 }
@@ -252,24 +292,43 @@ def prepare_trial(args: argparse.Namespace, error: type[Exception] = ValueError,
     The options of :func:`add_preprocessing_options` fix the corresponding choices;
     the others are made from the record and printed through ``say``.
 
+    Before sampling, the sanity checks of :func:`bayesbeam.trials.checks.check_trial`
+    run: the beam's physical plausibility and the record's (constant signal, stamps in
+    the wrong unit, mode 1 outside the record) before the plan, the mode-1 line against
+    noise and the modulus it implies after it. An error refuses the trial (``error``,
+    one line naming the value and the fix) unless ``args.skip_checks``; warnings, and
+    errors under ``--skip-checks``, go through ``say`` as ``warning: ...``.
+
     Parameters
     ----------
     args : argparse.Namespace
         Parsed options with ``trial`` and those of :func:`add_preprocessing_options`.
     error : type of Exception
-        The command's error class (for ``--decimate`` on non-uniform stamps).
+        The command's error class (for ``--decimate`` on non-uniform stamps and for
+        the sanity checks' errors).
     say : callable, optional
-        Receives one line per choice (the command prints them on stderr).
+        Receives one line per choice and per warning (the command prints them on
+        stderr); without it warnings are issued with :func:`warnings.warn`.
 
     Returns
     -------
     tuple of (bayesbeam.trials.trial.Trial, bayesbeam.trials.preprocess.Preprocessing)
         The trial as the fit sees it, and the record of the choices.
+
+    Raises
+    ------
+    Exception
+        ``error`` for a failed sanity check (without ``--skip-checks``).
     """
+    from bayesbeam.physics.plausible import plausibility
+    from bayesbeam.trials.checks import record_checks, spectrum_checks
     from bayesbeam.trials.io import read_trial
     from bayesbeam.trials.preprocess import prepare
 
     trial = read_trial(args.trial)
+    skip = bool(getattr(args, "skip_checks", False))
+    before = plausibility(trial.beam) + record_checks(trial)
+    _sanity(before, error, say, skip)
     given: dict[str, Any] = {
         "initial": args.initial, "offset": args.offset, "max_samples": args.max_samples,
         "auto": False if args.as_is else None, "rate": args.rate,
@@ -284,10 +343,28 @@ def prepare_trial(args: argparse.Namespace, error: type[Exception] = ValueError,
                         "or --rate HZ")
         given["rate"] = 1.0 / (args.decimate * trial.dt)
     out, pre = prepare(trial, **given)
+    if not any(f.check == "constant" for f in before):  # no spectrum to judge
+        # before the choices are printed: a refusal is then the only line on stderr
+        _sanity(spectrum_checks(trial, pre), error, say, skip)
     if say is not None:
         for line in pre.lines():
             say(f"preprocessing: {line}")
     return out, pre
+
+
+def _sanity(findings: list[Any], error: type[Exception], say: Callable[[str], None] | None,
+            skip: bool) -> None:
+    """Refuse on the checks' errors (unless ``skip``); report the rest as warnings."""
+    errors = [f.message for f in findings if f.severity == "error"]
+    if errors and not skip:
+        raise error("; ".join(errors) + " (if these values are right, rerun with "
+                    "--skip-checks)")
+    for f in findings:
+        line = f"warning: {f.message}" + (" (--skip-checks)" if f.severity == "error" else "")
+        if say is not None:
+            say(line)
+        else:
+            warnings.warn(line, UserWarning, stacklevel=3)
 
 
 def say(line: str) -> None:

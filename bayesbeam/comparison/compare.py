@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import finite_json
+from bayesbeam._util import atomic_path, finite_json, write_text_atomic
 from bayesbeam.comparison.scoring import CompareError, ModelScore, evaluate
 from bayesbeam.comparison.sensitivity import (
     SensitivityRow,
@@ -355,7 +355,8 @@ class Comparison:
         for ax in (ax1, ax2):
             ax.margins(x=0.08)
         ax1.set_yticks(y, list(self.names))
-        fig.savefig(path, dpi=dpi)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
         return path
 
     def save(self, outdir: str | Path, *, fits: bool = True,
@@ -385,15 +386,16 @@ class Comparison:
             "html": outdir / "comparison.html",
             "png": outdir / "comparison.png",
         }
-        paths["json"].write_text(
+        write_text_atomic(
+            paths["json"],
             json.dumps({**self.to_json_dict(), **(extra or {})}, indent=2, allow_nan=False)
-            + "\n", encoding="utf-8"
+            + "\n",
         )
-        paths["txt"].write_text(str(self) + "\n", encoding="utf-8")
-        paths["html"].write_text(
+        write_text_atomic(paths["txt"], str(self) + "\n")
+        write_text_atomic(
+            paths["html"],
             "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>bayesbeam model "
             "comparison</title></head><body>\n" + self._repr_html_() + "\n</body></html>\n",
-            encoding="utf-8",
         )
         self.plot(paths["png"])
         if fits:

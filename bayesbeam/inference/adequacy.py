@@ -16,7 +16,19 @@ here need no truth; each compares the fit with something the data say on their o
 * **spectral lines** — Fisher's (1929) g test on the same innovations: a periodic
   component the model left out (a mode, a harmonic, mains pickup) with its frequency;
 * **predictive coverage** — the share of samples inside the central 90 % posterior-
-  predictive interval, against 0.9 ± (3 binomial sd + 2 / draws).
+  predictive interval, against 0.9 ± (3 binomial sd + 2 / draws);
+* **prior bounds** (:func:`prior_bound_pileup`) — for each prior with finite bounds in
+  the sampling space ``u``, the share of posterior draws within 1 % of the prior range
+  (:data:`LIMITS` ``bound_edge``) from a bound. A posterior flat up to the bound puts
+  1 % there; above 10 % (``bound_share``) the likelihood still rises at the bound: the
+  data want values the prior excludes and the interval is the prior's, not the data's.
+  A bound that is a physical limit, not a choice, is an answer when the posterior sits
+  on it: zero of a prior uniform in linear space (no correlation, no damping term), and
+  the span's ends for a position (:data:`PHYSICAL_BOUNDS`);
+* **explained variance** — ``R² = 1 - σ² / var(y)`` (σ the posterior median noise sd,
+  the residuals' marginal sd also with AR(1) noise). Below 0.5 (``explained_min``) the
+  "noise" is as large as the signal: the model follows little of the record (or the
+  record holds little beyond noise), whatever the other checks say.
 
 Both tests reject at p < 10⁻³ (:data:`LIMITS` ``p_min``), so an adequate model is
 flagged by chance in about 0.2 % of fits. On non-uniform stamps the tests treat the
@@ -36,14 +48,20 @@ import numpy as np
 
 from bayesbeam.inference.predictive import posterior_predictive
 from bayesbeam.physics.forward import grid_with_holes
+from bayesbeam.stats.families import Uniform
 from bayesbeam.stats.likelihood import standardized_innovations
 from bayesbeam.stats.whiteness import fisher_g, ljung_box
 from bayesbeam.trials.noise import noise_floor
 
-__all__ = ["LIMITS", "assess", "in_band"]
+__all__ = ["LIMITS", "PHYSICAL_BOUNDS", "assess", "in_band", "prior_bound_pileup"]
 
 #: Decision limits of :func:`assess` (see the module docstring for their meaning).
-LIMITS = {"noise_ratio": 1.2, "p_min": 1e-3, "coverage": 0.9, "lags": 20}
+LIMITS = {"noise_ratio": 1.2, "p_min": 1e-3, "coverage": 0.9, "lags": 20,
+          "bound_edge": 0.01, "bound_share": 0.10, "explained_min": 0.5}
+
+#: Parameters whose prior bounds (both) are physical limits, not choices: a posterior on
+#: them is an answer (an added mass at the clamp or at the free end), not a prior problem.
+PHYSICAL_BOUNDS = frozenset({"added_mass_position"})
 
 
 def in_band(z: np.ndarray, dt: float, band: float) -> tuple[np.ndarray, float]:
@@ -83,6 +101,47 @@ def in_band(z: np.ndarray, dt: float, band: float) -> tuple[np.ndarray, float]:
     return zb, dt * n / n_out
 
 
+def prior_bound_pileup(priors: Any, u: np.ndarray, *, edge: float = LIMITS["bound_edge"],
+                       share: float = LIMITS["bound_share"]) -> list[dict[str, Any]]:
+    """Prior bounds on which the posterior piles up (see the module docstring).
+
+    Parameters
+    ----------
+    priors : bayesbeam.stats.priors.PriorSet
+        The fit's priors (column order of ``u``).
+    u : ndarray, shape (..., ndim)
+        Posterior draws in the sampling space.
+    edge : float
+        Width of the zone at each bound, as a fraction of the prior range in ``u``.
+    share : float
+        Least share of draws in the zone that counts as a pile-up.
+
+    Returns
+    -------
+    list of dict
+        One per pile-up: ``param``, ``side`` ('lower' or 'upper'), ``bound`` (physical
+        units), ``share`` (fraction of draws within ``edge`` of the range from it).
+        Priors unbounded in ``u`` and physical limits (zero of a uniform prior,
+        :data:`PHYSICAL_BOUNDS`) are not tested.
+    """
+    u = np.asarray(u, dtype=float).reshape(-1, len(priors))
+    out = []
+    for j, (name, prior) in enumerate(priors.items()):
+        lo, hi = prior.bounds_u
+        if not (math.isfinite(lo) and math.isfinite(hi)) or name in PHYSICAL_BOUNDS:
+            continue
+        width = hi - lo
+        for side, at, near in (("lower", 0, u[:, j] <= lo + edge * width),
+                               ("upper", 1, u[:, j] >= hi - edge * width)):
+            bound = float(prior.bounds[at])
+            if isinstance(prior, Uniform) and bound == 0.0:
+                continue  # zero in linear space: "none of it" is an answer
+            s = float(np.mean(near))
+            if s > share:
+                out.append({"param": name, "side": side, "bound": bound, "share": s})
+    return out
+
+
 def _fmt_p(p: float) -> str:
     return f"p = {p:.1e}" if p >= 1e-300 else "p < 1e-300"
 
@@ -110,7 +169,10 @@ def assess(problem: Any, result: Any, *, rng: np.random.Generator,
         estimated from the record alone), ``noise_ratio``, ``noise_floor_frequencies``
         (Hz), ``residual_rms``, ``ljung_box`` (``{"q", "p", "lags"}``),
         ``spectral_line`` (``{"frequency_hz", "amplitude_sigma", "p"}``),
-        ``coverage_90`` and ``coverage_band`` ([lo, hi]), ``n_draws``, ``limits``.
+        ``coverage_90`` and ``coverage_band`` ([lo, hi]), ``n_draws``, ``limits``,
+        ``prior_bounds`` (list of ``{"param", "side", "bound", "share"}``, the prior
+        bounds the posterior piles on, :func:`prior_bound_pileup`) and
+        ``explained_variance`` (``1 - σ² / var(y)``).
     """
     trial = problem.trial
     y = np.asarray(problem.data, dtype=float)
@@ -171,6 +233,22 @@ def assess(problem: Any, result: Any, *, rng: np.random.Generator,
             f"90 % predictive interval covers {100 * coverage:.1f} % of the samples "
             f"(expected {100 * band[0]:.1f}-{100 * band[1]:.1f} %)"
         )
+    piles = prior_bound_pileup(problem.priors, result.chain.samples)
+    for pile in piles:
+        reasons.append(
+            f"posterior of {pile['param']} piles on its prior's {pile['side']} bound "
+            f"{pile['bound']:.4g} ({100 * pile['share']:.0f} % of draws within "
+            f"{100 * LIMITS['bound_edge']:g} % of the prior range): the data want values "
+            "outside the prior; widen it (--priors)"
+        )
+    var_y = float(np.var(y))
+    explained = 1.0 - sigma**2 / var_y if var_y > 0 else 0.0
+    if explained < LIMITS["explained_min"]:
+        reasons.append(
+            f"the model explains only {100 * max(explained, 0.0):.0f} % of the signal's "
+            f"variance (σ = {sigma:.3g} {unit} vs signal RMS {math.sqrt(var_y):.3g} {unit} "
+            "about its mean)"
+        )
     ok = not reasons
     if ok:
         summary = (
@@ -200,4 +278,6 @@ def assess(problem: Any, result: Any, *, rng: np.random.Generator,
         "coverage_band": band,
         "n_draws": int(y_rep.shape[0]),
         "limits": dict(LIMITS),
+        "prior_bounds": piles,
+        "explained_variance": float(explained),
     }

@@ -523,6 +523,11 @@ def fit(
 ) -> FitResult:
     """Sample the posterior of one model on one trial.
 
+    The trial is taken as given: the sanity checks of the command line (an implausible
+    beam, a record without a free decay, stamps in ms) are not run here. On a record
+    from elsewhere call :func:`bayesbeam.trials.checks.check_trial` first; afterwards
+    ``adequacy`` flags a posterior piled on a prior bound and a σ of the signal's size.
+
     Parameters
     ----------
     trial : Trial

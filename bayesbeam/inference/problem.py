@@ -40,7 +40,7 @@ import scipy.linalg as sla
 from bayesbeam.physics.fem import assemble
 from bayesbeam.physics.forward import Forward, Response, initial_names
 from bayesbeam.physics.models import Model, parse_model
-from bayesbeam.stats.families import LogUniform, Normal, Prior, Uniform
+from bayesbeam.stats.families import LogUniform, Normal, Prior, PriorError, Uniform
 from bayesbeam.stats.likelihood import ar1_loglik, ar1_pointwise, iid_loglik, iid_pointwise
 from bayesbeam.stats.priors import PriorSet
 from bayesbeam.trials.trial import Trial
@@ -255,6 +255,14 @@ def default_priors(
     w1 = BETA1**2 * np.sqrt(E_ref * inertia / (rhoA * L**4))
     zlo, zhi = ZETA_RANGE
     sd_y = float(np.std(trial.values))
+    # The priors' scales come from the record: name the record's fault, not a bound's.
+    if not sd_y > 0:
+        raise PriorError(f"the record of {trial.name!r} is constant (sd 0): no scale for the "
+                         "priors and no motion to fit; check the value column and its unit")
+    if not (np.isfinite(E_ref) and E_ref > 0):
+        raise PriorError(f"no positive E to centre the E prior on (E_ref = {E_ref!r} Pa from "
+                         f"the record of {trial.name!r}, which shows no first mode); give "
+                         "the nominal E in [beam] or check the record's time and value columns")
     # Displacement scale of the signal: divide by ω1 per time derivative.
     order = {"displacement": 0, "velocity": 1, "acceleration": 2}[trial.quantity]
     disp_scale = float(np.max(np.abs(trial.values))) / w1**order

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import copy
 import datetime as _dt
+import io
 import json
 import platform
 import sys
@@ -38,7 +39,13 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import distribution_version, finite_json, json_default
+from bayesbeam._util import (
+    atomic_path,
+    distribution_version,
+    finite_json,
+    json_default,
+    write_text_atomic,
+)
 from bayesbeam.stats.priors import PriorSet
 from bayesbeam.stats.sampling import Chain
 
@@ -465,10 +472,16 @@ class FitResult:
             idata = self.to_inference_data(**idata_kwargs)
         nc = outdir / "posterior.nc"
         _require_h5netcdf()
-        idata.to_netcdf(nc, engine="h5netcdf")
+        # Built in memory, then written as plain bytes: a failing write (full disk) is
+        # then an ordinary OSError, never a half-written HDF5 file that the HDF5 library
+        # tries to close again at exit (that ended in a segmentation fault).
+        buf = io.BytesIO()
+        idata.to_netcdf(buf, engine="h5netcdf")
+        with atomic_path(nc) as tmp:
+            tmp.write_bytes(buf.getvalue())
         js = outdir / "summary.json"
         text = json.dumps(self.to_json_dict(), default=json_default, allow_nan=False, indent=2)
-        js.write_text(text + "\n", encoding="utf-8")
+        write_text_atomic(js, text + "\n")
         return {"netcdf": nc, "summary": js}
 
     @classmethod
@@ -594,7 +607,8 @@ class FitResult:
         )
         fig.suptitle(f"{self.model}: posterior ({flat.shape[0]} samples)")
         path = Path(path)
-        fig.savefig(path, dpi=dpi)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
         return path
 
     def plot_trace(self, path: str | Path, *, dpi: int = 120, max_walkers: int = 64) -> Path:
@@ -632,7 +646,8 @@ class FitResult:
             f"R-hat max {c.rhat_max:.3f})"
         )
         path = Path(path)
-        fig.savefig(path, dpi=dpi)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
         return path
 
 

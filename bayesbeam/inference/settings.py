@@ -27,10 +27,14 @@ from dataclasses import dataclass
 from typing import Any
 
 __all__ = [
+    "COSTLY_ELEMENTS",
     "DIAGNOSIS_DEFAULTS",
     "FIT_DEFAULTS",
     "FitSettings",
+    "MAX_ELEMENTS",
     "fit_settings",
+    "mesh_cost",
+    "mesh_cost_text",
     "walker_count",
 ]
 
@@ -124,3 +128,96 @@ def walker_count(nwalkers: int | None, ndim: int) -> int:
     """
     n = max(32, 4 * ndim) if nwalkers is None else nwalkers
     return n + n % 2
+
+
+#: Most Hermite elements the commands accept (``--elements``). A fit refines its mesh
+#: itself where the data need it (:data:`bayesbeam.inference.mesh.LADDER`: from 16 up to
+#: 96 elements) and checks the final mesh against one 1.5 x finer beyond the ladder, so
+#: a start of 200, twice the ladder's finest, is checked against 300. Cubic Hermite
+#: frequencies converge as (k/N)^4 (physics.md §4): 200 elements resolve the first 50
+#: modes as well as the default 16 resolve the first 4 (1.5e-4), more modes than any
+#: sensor band holds. Above it the dense state matrices cost gigabytes and minutes per
+#: sampler step (:func:`mesh_cost`: 0.9 GB and 12 s at 200 elements, 5.6 GB and 90 s at
+#: 500) and resolve no mode a record can show.
+MAX_ELEMENTS = 200
+
+#: From this many elements on, the commands say what the mesh costs (about 10 x the
+#: default's time per sampler step).
+COSTLY_ELEMENTS = 64
+
+# mesh_cost's model, measured on a 2-core machine (one BLAS thread, 32 parameter sets,
+# 1280 samples, viscous damping, classical and non-classical): the forward model holds
+# about 5.5 dense (4N x 4N) float64 arrays per parameter set at its peak (modal damping,
+# state matrix, the sensor band's reduction), and its time grows as N^2.2 between 64 and
+# 200 elements (0.8-1.1 s at 64, 2.1-2.8 s at 96, 11.5-12.3 s at 200) above a floor of
+# 0.07 s of per-call work.
+_ARRAYS_PER_SET = 5.5
+_SECONDS_AT_200 = 12.0
+_TIME_EXPONENT = 2.2
+_SECONDS_FLOOR = 0.07
+
+
+def mesh_cost(n_elements: int, n_sets: int = 32) -> tuple[float, float]:
+    """Estimated peak memory and time of one forward evaluation on a mesh.
+
+    The forward model's state has ``4 N`` entries (two degrees of freedom per node,
+    displacement and velocity) and its matrices are dense, so memory grows as ``N^2``
+    and time as about ``N^2.2`` (see the measurements above :func:`mesh_cost` in the
+    source). One evaluation of ``n_sets`` parameter sets is one sampler step of as many
+    walkers (32 by default, :func:`walker_count`).
+
+    Parameters
+    ----------
+    n_elements : int
+        Hermite elements ``N``.
+    n_sets : int
+        Parameter sets evaluated together.
+
+    Returns
+    -------
+    memory_bytes : float
+        Peak memory of the forward model's arrays, bytes.
+    seconds : float
+        Wall time on a 2-core machine with one BLAS thread, s (a rough guide: machines
+        differ by a few times).
+    """
+    states = 4 * n_elements
+    memory = _ARRAYS_PER_SET * 8.0 * states**2 * n_sets
+    seconds = (_SECONDS_FLOOR + _SECONDS_AT_200 * (n_elements / 200) ** _TIME_EXPONENT
+               ) * n_sets / 32
+    return memory, seconds
+
+
+def _num(x: float) -> str:
+    """Two significant digits, without an exponent (12, 1.5, 0.12; 130 for 128)."""
+    return f"{float(f'{x:.2g}'):.0f}" if x >= 10 else f"{x:.2g}"
+
+
+def _size(nbytes: float) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6)):
+        if nbytes >= scale:
+            return f"{_num(nbytes / scale)} {unit}"
+    return f"{_num(nbytes / 1e3)} kB"
+
+
+def mesh_cost_text(n_elements: int, n_sets: int = 32) -> str:
+    """One clause saying what a mesh costs (:func:`mesh_cost`), for notes and errors.
+
+    Parameters
+    ----------
+    n_elements : int
+        Hermite elements.
+    n_sets : int
+        Parameter sets per evaluation (walkers per sampler step).
+
+    Returns
+    -------
+    str
+        E.g. for 200 elements ``'800 dense states: about 900 MB and 12 s per evaluation
+        of 32 parameter sets (one sampler step), 100 x the default 16 elements' time'``.
+    """
+    memory, seconds = mesh_cost(n_elements, n_sets)
+    _, base = mesh_cost(FIT_DEFAULTS.n_elements, n_sets)
+    return (f"{4 * n_elements} dense states: about {_size(memory)} and {_num(seconds)} s "
+            f"per evaluation of {n_sets} parameter sets (one sampler step), "
+            f"{_num(seconds / base)} x the default {FIT_DEFAULTS.n_elements} elements' time")

@@ -40,7 +40,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import file_sha256, finite_json, read_toml
+from bayesbeam._util import (
+    SCHEMA_VERSION,
+    atomic_path,
+    file_sha256,
+    finite_json,
+    read_toml,
+    write_text_atomic,
+)
 from bayesbeam.inference.settings import FIT_DEFAULTS
 from bayesbeam.jobs.summary import beam_of, beam_summary, conclusions_text, format_table
 
@@ -253,8 +260,9 @@ def _diagnosis_cached(folder: Path, key: str) -> dict[str, Any] | None:
 def _write_files(folder: Path, files: Mapping[str, bytes], task: Mapping[str, Any]) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     for name, data in files.items():
-        (folder / name).write_bytes(data)
-    (folder / "task.json").write_text(json.dumps(dict(task), indent=2) + "\n", "utf-8")
+        with atomic_path(folder / name) as tmp:
+            tmp.write_bytes(data)
+    write_text_atomic(folder / "task.json", json.dumps(dict(task), indent=2) + "\n")
 
 
 # --------------------------------------------------------------------------- overlay
@@ -299,7 +307,8 @@ def _overlay(trial_file: Path, trial_dir: Path, models: Sequence[str], dpi: int)
     ax2.set_ylabel("residual [µm] (offset per model)")
     ax2.set_xlabel("time [s]")
     ax2.legend(loc="upper right", fontsize="small")
-    fig.savefig(trial_dir / "fits.png", dpi=dpi)
+    with atomic_path(trial_dir / "fits.png") as tmp:
+        fig.savefig(tmp, dpi=dpi)
 
 
 # --------------------------------------------------------------------------- main
@@ -358,6 +367,7 @@ def run_replication(
     report: bool = True,
     force: bool = False,
     progress: bool | Callable[[str], None] = True,
+    run_id: str | None = None,
 ) -> Replication:
     """Fit, compare and summarise every (trial, model); diagnose one trial; write a report.
 
@@ -389,6 +399,8 @@ def run_replication(
         Recompute cached results.
     progress : bool or callable
         Progress lines (stderr, or a callable that receives them).
+    run_id : str, optional
+        Id of the command run, written into ``replication.json`` (``run_id``).
 
     Returns
     -------
@@ -491,6 +503,8 @@ def run_replication(
         "rows": [{**r, "params": {k: list(v) for k, v in r["params"].items()}} for r in rows],
         "models": list(models),
         "seed": seed,
+        "schema_version": SCHEMA_VERSION,
+        "run_id": run_id,
         "settings": base,
         "diagnosis_settings": None if diag_spec is None else
         {k: v for k, v in diag_spec.items() if k != "trial_file"},
@@ -516,7 +530,7 @@ def run_replication(
     }
     rep_path = None
     t_rep0 = time.perf_counter()
-    (outdir / "replication.txt").write_text(table + "\n\n" + conclusions + "\n", "utf-8")
+    write_text_atomic(outdir / "replication.txt", table + "\n\n" + conclusions + "\n")
     _write_json(outdir / "replication.json", record)
     if report:
         from bayesbeam.report.html import write_report
@@ -539,7 +553,7 @@ def _ignore(line: str) -> None:
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    path.write_text(json.dumps(finite_json(obj), indent=2, allow_nan=False) + "\n", "utf-8")
+    write_text_atomic(path, json.dumps(finite_json(obj), indent=2, allow_nan=False) + "\n")
 
 
 def run_demo(
@@ -551,6 +565,7 @@ def run_demo(
     data_dir: str | Path | None = None,
     force: bool = False,
     progress: bool | Callable[[str], None] = True,
+    run_id: str | None = None,
 ) -> Replication:
     """Run the ``bayesbeam demo`` job: :func:`run_replication` with the demo settings.
 
@@ -573,6 +588,8 @@ def run_demo(
     force : bool
         Recompute cached results.
     progress : bool or callable
+    run_id : str, optional
+        See :func:`run_replication`.
 
     Returns
     -------
@@ -586,4 +603,5 @@ def run_demo(
         outdir, data_dir=data_dir, trials=[1] if quick else None,
         settings=QUICK_SETTINGS if quick else DEMO_SETTINGS, jobs=jobs, scheduler=scheduler,
         diagnosis=QUICK_DIAGNOSIS if quick else True, force=force, progress=progress,
+        run_id=run_id,
     )

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import file_sha256, finite_json, json_default
+from bayesbeam._util import file_sha256, finite_json, json_default, write_text_atomic
 from bayesbeam.inference.settings import FIT_DEFAULTS, FitSettings
 
 __all__ = [
@@ -250,7 +250,7 @@ def _single_thread() -> Iterator[None]:
 def _dump(path: Path, obj: Any) -> None:
     text = json.dumps(finite_json(json.loads(json.dumps(obj, default=json_default))), indent=2,
                       allow_nan=False)
-    path.write_text(text + "\n", encoding="utf-8")
+    write_text_atomic(path, text + "\n")
 
 
 def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any]:

@@ -631,12 +631,20 @@ class Forward:
         y[idx[ok]] = yy[ok]
         return Response(y, valid)
 
-    def modes(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
+    def modes(
+        self, theta: np.ndarray | dict, *, return_overdamped: bool = False
+    ) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, int]:
         """Natural frequencies and damping ratios of the underdamped modes of one set.
+
+        An overdamped mode (damping above critical) has two real eigenvalues: it decays
+        without oscillating and has no frequency, so it is not among the returned modes;
+        ``return_overdamped=True`` also returns how many there are.
 
         Parameters
         ----------
         theta : ndarray, shape (P,) or dict
+        return_overdamped : bool
+            Also return the number of overdamped modes.
 
         Returns
         -------
@@ -644,6 +652,9 @@ class Forward:
             |λ|/2π of each underdamped eigenvalue λ (Im λ > 0), sorted by |λ|.
         damping_ratios : ndarray, shape (k,)
             −Re λ / |λ|.
+        n_overdamped : int
+            Only with ``return_overdamped``: modes with real eigenvalues (half the count
+            of real eigenvalues of the state matrix; critically damped ones included).
         """
         theta = self._columns(theta)[:1]
         if not self.check(theta)[0]:
@@ -655,16 +666,23 @@ class Forward:
                 "stiffness_gradient in (-2, 2)"
             )
         omega, C, _ = self.modal_system(theta)
-        lam = propagate.eigenvalues(propagate.state_matrix(omega, C))[0]
-        lam = lam[lam.imag > 1e-9 * np.abs(lam)]
+        lam_all = propagate.eigenvalues(propagate.state_matrix(omega, C))[0]
+        lam = lam_all[lam_all.imag > 1e-9 * np.abs(lam_all)]
         order = np.argsort(np.abs(lam))
         lam = lam[order]
-        return np.abs(lam) / (2 * np.pi), -lam.real / np.abs(lam)
+        f, zeta = np.abs(lam) / (2 * np.pi), -lam.real / np.abs(lam)
+        if not return_overdamped:
+            return f, zeta
+        # Real eigenvalues come in pairs, one pair per overdamped mode; the rest are the
+        # conjugate pairs of the underdamped ones.
+        n_real = int(np.count_nonzero(np.abs(lam_all.imag) <= 1e-9 * np.abs(lam_all)))
+        return f, zeta, n_real // 2
 
 
 def modal_properties(
-    beam: Beam, model: str | Model, params: dict[str, float], *, n_elements: int = 16
-) -> tuple[np.ndarray, np.ndarray]:
+    beam: Beam, model: str | Model, params: dict[str, float], *, n_elements: int = 16,
+    return_overdamped: bool = False,
+) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, int]:
     """Natural frequencies (Hz) and modal damping ratios of a damped beam.
 
     Parameters
@@ -674,11 +692,15 @@ def modal_properties(
     params : dict
         Physical parameters of the model (SI); E defaults to ``beam.E``.
     n_elements : int
+    return_overdamped : bool
+        Also return the number of overdamped modes (no frequency: not in the arrays).
 
     Returns
     -------
     frequencies_hz, damping_ratios : ndarray, shape (k,)
-        See :meth:`Forward.modes`.
+        Of the underdamped modes; see :meth:`Forward.modes`.
+    n_overdamped : int
+        Only with ``return_overdamped``.
     """
     fwd = Forward(beam, model, np.array([0.0, 1.0]), n_elements=n_elements)
     p = {"w0": 0.0, **params}
@@ -699,4 +721,4 @@ def modal_properties(
             f"{extra} are not parameters of model {fwd.model.name!r}; it takes "
             f"{list(fwd.model.physical_params)} (SI units)"
         )
-    return fwd.modes(p)
+    return fwd.modes(p, return_overdamped=return_overdamped)

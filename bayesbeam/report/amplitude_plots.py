@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam._util import atomic_path
+
 __all__ = [
     "FIGURES",
     "model_extra",
@@ -267,7 +269,8 @@ def write_amplitude_figures(curves: Any, outdir: str | Path, *,
         if fig is None:
             continue
         path = out / FIGURES[key]
-        fig.savefig(path, dpi=dpi)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
         paths.append(path)
     return paths
 

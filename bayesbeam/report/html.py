@@ -37,6 +37,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from bayesbeam._util import write_text_atomic
+
 __all__ = ["REPORT_NAME", "ReportError", "build_report", "markdown_to_html", "write_report"]
 
 #: File name of the report inside the output folder.
@@ -120,7 +122,8 @@ def _img(path: Path) -> str:
 
 
 def _figures(folder: Path) -> str:
-    pngs = {p.name: p for p in folder.glob("*.png") if p.is_file()}
+    pngs = {p.name: p for p in folder.glob("*.png")  # not a write in progress (.name.tmp)
+            if p.is_file() and not p.name.startswith(".")}
     names = [n for n in _FIGURE_ORDER if n in pngs] + sorted(set(pngs) - set(_FIGURE_ORDER))
     return "".join(_img(pngs[n]) for n in names)
 
@@ -372,31 +375,68 @@ def _inspect_section(rec: dict) -> str:
             f"Residual lines: {txt}.</p>" + _table(head, rows))
 
 
-def _folder_body(folder: Path) -> str:
-    parts = []
+def _sections(folder: Path) -> list[tuple[str | None, str, str]]:
+    """Return the folder's result sections as ``(run id or None, file name, HTML)``."""
+    parts: list[tuple[str | None, str, str]] = []
+
+    def add(name: str, record: Any, html_text: str) -> None:
+        run = record.get("run_id") if isinstance(record, dict) else None
+        parts.append((run if isinstance(run, str) else None, name, html_text))
+
     if (folder / "inspect.json").is_file():
-        parts.append("<h3>What the data say before any model</h3>"
-                     + _inspect_section(_read_json(folder / "inspect.json")))
+        rec = _read_json(folder / "inspect.json")
+        add("inspect.json", rec, "<h3>What the data say before any model</h3>"
+            + _inspect_section(rec))
     rep = folder / "replication.json"
     if rep.is_file():
-        parts.append(_replication_section(_read_json(rep)))
+        rec = _read_json(rep)
+        add(rep.name, rec, _replication_section(rec))
     elif (folder / "replication.txt").is_file():
-        parts.append("<pre>" + _esc((folder / "replication.txt").read_text("utf-8")) + "</pre>")
+        add("replication.txt", None,
+            "<pre>" + _esc((folder / "replication.txt").read_text("utf-8")) + "</pre>")
     if (folder / "comparison.json").is_file():
-        parts.append("<h3>Model comparison</h3>"
-                     + _comparison_section(_read_json(folder / "comparison.json")))
+        rec = _read_json(folder / "comparison.json")
+        add("comparison.json", rec, "<h3>Model comparison</h3>" + _comparison_section(rec))
     for dj in sorted(folder.glob("diagnosis*.json")):
-        parts.append("<h3>Diagnosis</h3>" + _diagnosis_section(_read_json(dj)))
+        rec = _read_json(dj)
+        add(dj.name, rec, "<h3>Diagnosis</h3>" + _diagnosis_section(rec))
     for md in sorted(folder.glob("*.md")):
         try:
-            parts.append(markdown_to_html(md.read_text(encoding="utf-8")))
+            add(md.name, None, markdown_to_html(md.read_text(encoding="utf-8")))
         except (OSError, UnicodeDecodeError) as err:
-            parts.append(f'<p class="warn">could not read {_esc(md.name)}: {_esc(err)}</p>')
+            add(md.name, None,
+                f'<p class="warn">could not read {_esc(md.name)}: {_esc(err)}</p>')
     if (folder / "summary.json").is_file():
         score = _read_json(folder / "score.json") if (folder / "score.json").is_file() else None
-        parts.append(_fit_section(_read_json(folder / "summary.json"), score))
-    parts.append(_figures(folder))
-    return "".join(parts)
+        rec = _read_json(folder / "summary.json")
+        add("summary.json", rec, _fit_section(rec, score))
+    return parts
+
+
+def _folder_body(folder: Path) -> str:
+    """Return the folder's sections, keeping the outputs of different runs apart.
+
+    Each command writes its run id (:mod:`bayesbeam.cli.outdir`) into its JSON outputs;
+    a folder that two runs wrote into (a compare, then a fit of another model) would
+    otherwise show their tables as if they were one result.
+    """
+    parts = _sections(folder)
+    runs = sorted({r for r, _, _ in parts if r is not None})
+    if len(runs) <= 1:
+        return "".join(h for _, _, h in parts) + _figures(folder)
+    listing = "; ".join(
+        f"{r}: " + ", ".join(n for q, n, _ in parts if q == r) for r in runs)
+    out = [f'<p class="warn">This folder holds the outputs of {len(runs)} different runs '
+           f"({_esc(listing)}). Each run's results are shown under its own heading; the "
+           "figures below cannot be told apart by run and may belong to any of them. "
+           "Write each run into its own -o folder.</p>"]
+    for r in runs:
+        out.append(f"<h3>Run {_esc(r)}</h3>" + "".join(h for q, _, h in parts if q == r))
+    rest = [h for q, _, h in parts if q is None]
+    if rest:
+        out.append("<h3>Files without a run id</h3>" + "".join(rest))
+    out.append(_figures(folder))
+    return "".join(out)
 
 
 _MARKERS = ("summary.json", "comparison.json", "replication.json", "replication.txt",
@@ -498,5 +538,5 @@ def write_report(outdir: str | Path, *, path: str | Path | None = None,
     """
     text = build_report(outdir, title=title)
     out = Path(outdir) / REPORT_NAME if path is None else Path(path)
-    out.write_text(text, encoding="utf-8")
+    write_text_atomic(out, text)
     return out

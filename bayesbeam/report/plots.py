@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import scipy.signal as ssig
 
+from bayesbeam._util import atomic_path
 from bayesbeam.inference.predictive import posterior_predictive
 from bayesbeam.stats.whiteness import autocorrelation, ljung_box
 
@@ -130,7 +131,8 @@ def plot_fit(
     rx.set_title(f"data − posterior median model (dashed: ±1.645 σ, σ = {sig:.3g} {unit})",
                  fontsize="small")
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi)
     return path
 
 
@@ -213,8 +215,8 @@ def plot_residual_spectrum(
         # mark those of the next few Nyquist zones so their peaks are not misread.
         high = fm[(fm >= 0.5 * fs) & (fm < 2.0 * fs)]
         for i, fi in enumerate(high):
-            r = fi % fs
-            ax.axvline(min(r, fs - r), color="tab:orange", ls=":", lw=0.8,
+            folded = fi % fs  # (named apart from the residuals r that the caption sizes)
+            ax.axvline(min(folded, fs - folded), color="tab:orange", ls=":", lw=0.8,
                        label="aliases of higher modes" if i == 0 else None)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel(f"amplitude spectral density [{unit}/√Hz]")
@@ -232,7 +234,8 @@ def plot_residual_spectrum(
         fontsize="x-small", va="bottom",
     )
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi)
     return path
 
 

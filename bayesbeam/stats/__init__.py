@@ -60,6 +60,7 @@ _EXPORTS = {
     "PriorError": ".families",
     "PriorSet": ".priors",
     "read_meta": ".checkpoint",
+    "saved_steps": ".checkpoint",
     "preburn_walkers": ".sampling",
     "run_emcee": ".sampling",
     "SamplingError": ".checkpoint",
@@ -71,7 +72,6 @@ _EXPORTS = {
     "waic": ".criteria",
     "WAICWarning": ".criteria",
     "WhitenessError": ".whiteness",
-    "write_meta": ".checkpoint",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -8,17 +8,22 @@ Group ``bayesbeam`` holds the run's bookkeeping: ``seed``, ``names`` (JSON),
 ``n_calls`` and ``seconds``, so that a resumed run can check it continues the same
 run and keep counting.
 
-New steps are appended by :meth:`CheckpointBackend.flush`, which the sampler loop
-calls after every check; :meth:`CheckpointBackend.save_step` also flushes when
-``flush_seconds`` of sampling have passed since the last write. emcee's own
-HDFBackend reopens the file on every step, which costs milliseconds per step;
-batching avoids that. A process killed *while* h5py writes (a short window per
-flush) can leave the file unreadable; that is an HDF5 limitation.
+:meth:`CheckpointBackend.flush` writes the whole file under a temporary name in the
+same folder and renames it into place (``os.replace``; the bytes are synced first).
+A kill -9, a full disk or any write error therefore leaves the previous checkpoint
+whole: no finished and flushed step is ever lost, and a resumed run continues
+bit-identically from the last flush. The sampler flushes after every convergence check,
+when ``flush_seconds`` of sampling have passed, and when the run ends or is
+interrupted. Rewriting costs about 2 ms per MB of chain (a 20,000-step chain of 32
+walkers and 12 parameters is 60 MB), against seconds of sampling between flushes.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,7 +33,15 @@ import emcee
 import h5py
 import numpy as np
 
-__all__ = ["CheckpointBackend", "SamplingError", "open_checkpoint", "read_meta", "write_meta"]
+from bayesbeam._util import atomic_path
+
+__all__ = [
+    "CheckpointBackend",
+    "SamplingError",
+    "open_checkpoint",
+    "read_meta",
+    "saved_steps",
+]
 
 
 class SamplingError(ValueError):
@@ -54,30 +67,53 @@ class CheckpointBackend(emcee.backends.Backend):
 
     def __init__(self, path: Path, flush_seconds: float):
         super().__init__()
-        self.path = path
-        self.h5 = emcee.backends.HDFBackend(str(path))
+        self.path = Path(path)
         self.flush_seconds = flush_seconds
+        #: Attributes of the file's ``bayesbeam`` group (seed, names, n_calls, seconds).
+        self.meta: dict[str, Any] = {}
         self._flushed = 0
         self._last_flush = time.monotonic()
 
     def reset(self, nwalkers: int, ndim: int) -> None:
-        """Start an empty chain in memory and in the file."""
+        """Start an empty chain in memory, and replace the file by an empty checkpoint."""
         super().reset(nwalkers, ndim)
-        self.h5.reset(nwalkers, ndim)
         self._flushed = 0
+        self.flush(force=True)
 
     def load(self) -> None:
-        """Read the saved steps and RNG state from the file into memory."""
-        nwalkers, ndim = (int(v) for v in self.h5.shape)
-        super().reset(nwalkers, ndim)
-        it = int(self.h5.iteration)
-        if it > 0:
-            self.chain = np.array(self.h5.get_chain(), dtype=self.dtype)
-            self.log_prob = np.array(self.h5.get_log_prob(), dtype=self.dtype)
-            self.accepted = np.array(self.h5.accepted, dtype=self.dtype)
-            self.random_state = self.h5.random_state
-            self.iteration = it
+        """Read the saved steps, RNG state and bookkeeping from the file into memory.
+
+        Raises
+        ------
+        SamplingError
+            If the file is not a checkpoint this module can read (truncated, another
+            format, another layout); the message says how to start over.
+        """
+        try:
+            with h5py.File(self.path, "r") as f:
+                g = f["mcmc"]
+                nwalkers, ndim = int(g.attrs["nwalkers"]), int(g.attrs["ndim"])
+                it = int(g.attrs["iteration"])
+                super().reset(nwalkers, ndim)
+                if it > 0:
+                    self.chain = np.array(g["chain"][:it], dtype=self.dtype)
+                    self.log_prob = np.array(g["log_prob"][:it], dtype=self.dtype)
+                    self.accepted = np.array(g["accepted"], dtype=self.dtype)
+                    self.random_state = [v for k, v in sorted(g.attrs.items())
+                                         if k.startswith("random_state_")]
+                    self.iteration = it
+                self.meta = dict(f[_META].attrs.items()) if _META in f else {}
+        except (OSError, KeyError, ValueError) as err:
+            raise SamplingError(
+                f"checkpoint {self.path} cannot be read ({err}): it is truncated or not a "
+                "bayesbeam checkpoint; delete it, or run without --resume to start over"
+            ) from None
         self._flushed = it
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(nwalkers, ndim)`` of the chain in memory."""
+        return int(self.nwalkers), int(self.ndim)
 
     def save_step(self, state: emcee.State, accepted: np.ndarray) -> None:
         """Store a step in memory; flush if ``flush_seconds`` have passed."""
@@ -85,27 +121,47 @@ class CheckpointBackend(emcee.backends.Backend):
         if time.monotonic() - self._last_flush >= self.flush_seconds:
             self.flush()
 
-    def flush(self) -> None:
-        """Append the steps not yet in the file; the iteration counter goes last."""
+    def flush(self, force: bool = False) -> None:
+        """Write the file anew (temporary file, then rename) if it misses steps.
+
+        Parameters
+        ----------
+        force : bool
+            Write even when no step was added (new bookkeeping in :attr:`meta`).
+        """
         self._last_flush = time.monotonic()
-        n0, n1 = self._flushed, self.iteration
-        if n1 <= n0:
+        n = int(self.iteration)
+        if n <= self._flushed and not force:
             return
-        with self.h5.open("a") as f:
-            g = f[self.h5.name]
-            for key in ("chain", "log_prob"):
-                if g[key].shape[0] < n1:
-                    g[key].resize(n1, axis=0)
-            g["chain"][n0:n1] = self.chain[n0:n1]
-            g["log_prob"][n0:n1] = self.log_prob[n0:n1]
-            g["accepted"][:] = self.accepted
-            for i, v in enumerate(self.random_state):
-                g.attrs[f"random_state_{i}"] = v
-            g.attrs["iteration"] = n1
-        self._flushed = n1
+        nwalkers, ndim = self.shape
+        # The HDF5 image is built in memory and written as plain bytes: a failing write
+        # (full disk) is an ordinary OSError, never an HDF5 file left half-open.
+        buf = io.BytesIO()
+        with h5py.File(buf, "w") as f:
+            g = f.create_group("mcmc")
+            g.attrs["version"] = emcee.__version__
+            g.attrs["nwalkers"] = nwalkers
+            g.attrs["ndim"] = ndim
+            g.attrs["has_blobs"] = False
+            g.attrs["iteration"] = n
+            g.create_dataset("accepted", data=np.asarray(self.accepted, dtype=float))
+            g.create_dataset("chain", data=self.chain[:n].astype(self.dtype),
+                             maxshape=(None, nwalkers, ndim))
+            g.create_dataset("log_prob", data=self.log_prob[:n].astype(self.dtype),
+                             maxshape=(None, nwalkers))
+            if n > 0 and self.random_state is not None:
+                for i, v in enumerate(self.random_state):
+                    g.attrs[f"random_state_{i}"] = v
+            m = f.create_group(_META)
+            for k, v in self.meta.items():
+                m.attrs[k] = v
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.path) as tmp:
+            tmp.write_bytes(buf.getvalue())
+        self._flushed = n
 
     def write_progress(self, n_calls: int, seconds: float) -> None:
-        """Record the work done so far, for a resumed run's totals; call after :meth:`flush`.
+        """Record the work done so far (for a resumed run's totals) and write the file.
 
         Parameters
         ----------
@@ -114,23 +170,35 @@ class CheckpointBackend(emcee.backends.Backend):
         seconds : float
             Sampling wall-clock seconds so far, earlier processes included.
         """
-        write_meta(self.path, {"n_calls": n_calls, "seconds": seconds})
+        self.meta.update(n_calls=int(n_calls), seconds=float(seconds))
+        self.flush(force=True)
 
 
-def write_meta(path: Path, meta: dict[str, Any]) -> None:
-    """Set attributes of the ``bayesbeam`` group of ``path`` (created if missing).
+def saved_steps(path: Path) -> int:
+    """Return the number of steps saved in the checkpoint ``path`` (0 if there is none).
+
+    A cheap check before a resumed run spends time on its start (MAP search, mesh).
 
     Parameters
     ----------
     path : pathlib.Path
         HDF5 file.
-    meta : dict
-        Attribute names and h5py-storable values.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    SamplingError
+        If the file exists but is not a readable checkpoint.
     """
-    with h5py.File(path, "a") as f:
-        g = f.require_group(_META)
-        for k, v in meta.items():
-            g.attrs[k] = v
+    path = Path(path)
+    if not path.exists():
+        return 0
+    backend = CheckpointBackend(path, flush_seconds=math.inf)
+    backend.load()
+    return int(backend.iteration)
 
 
 def read_meta(path: Path) -> dict[str, Any]:
@@ -196,13 +264,18 @@ def open_checkpoint(
     names = tuple(names)
     prior_calls, prior_seconds = 0, 0.0
     backend = CheckpointBackend(path, flush_seconds)
-    if resume and backend.h5.initialized:
-        if tuple(backend.h5.shape) != (nwalkers, ndim):
+    for stale in path.parent.glob(f".{path.stem}.*.tmp{path.suffix}"):  # a killed flush's
+        with contextlib.suppress(OSError):
+            stale.unlink()
+    if resume and path.exists():
+        backend.load()
+    if resume and backend.iteration > 0:
+        if backend.shape != (nwalkers, ndim):
             raise SamplingError(
-                f"checkpoint {path} has (nwalkers, ndim) = {tuple(backend.h5.shape)}, but u0 "
+                f"checkpoint {path} has (nwalkers, ndim) = {backend.shape}, but u0 "
                 f"has {(nwalkers, ndim)}; use the same walkers or resume=False"
             )
-        meta = read_meta(path)
+        meta = backend.meta
         if "seed" in meta and int(meta["seed"]) != seed:
             raise SamplingError(
                 f"checkpoint {path} was started with seed={int(meta['seed'])}; pass "
@@ -215,9 +288,8 @@ def open_checkpoint(
             )
         prior_calls = int(meta.get("n_calls", 0))
         prior_seconds = float(meta.get("seconds", 0.0))
-        backend.load()
+        backend.meta.update(seed=seed, names=json.dumps(list(names)))
     else:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        backend.meta = {"seed": seed, "names": json.dumps(list(names))}
         backend.reset(nwalkers, ndim)
-    write_meta(path, {"seed": seed, "names": json.dumps(list(names))})
     return backend, prior_calls, prior_seconds

@@ -48,7 +48,9 @@ ends with the same samples as an uninterrupted one.
 from __future__ import annotations
 
 import math
+import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -500,6 +502,40 @@ def de_moves() -> list[tuple[Any, float]]:
     return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
 
 
+class _DeferredInterrupt:
+    """Ctrl-C while sampling: finish the current step, keep it, then stop.
+
+    emcee wraps the log-probability in a function that prints its own report (the
+    parameters, about 50 lines on stdout) when anything, KeyboardInterrupt included, is
+    raised inside it. The handler installed here only sets :attr:`requested`; the
+    sampler loop stops after the step in progress and raises KeyboardInterrupt itself,
+    outside emcee, with every finished step written to the checkpoint. A second Ctrl-C
+    raises at once. Installed only in the main thread over Python's default handler
+    (a caller's own SIGINT handler, or a worker thread, is left alone).
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._installed = False
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.requested:  # a second Ctrl-C: do not wait for the step
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __enter__(self) -> _DeferredInterrupt:
+        if (threading.current_thread() is threading.main_thread()
+                and signal.getsignal(signal.SIGINT) is signal.default_int_handler):
+            signal.signal(signal.SIGINT, self._handle)
+            self._installed = True
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._installed:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            self._installed = False
+
+
 def run_emcee(
     log_prob: Callable[[np.ndarray], np.ndarray],
     u0: Any,
@@ -668,13 +704,14 @@ def run_emcee(
         )
 
     def save_meta() -> None:
-        if isinstance(backend, CheckpointBackend):
-            backend.flush()
+        if isinstance(backend, CheckpointBackend):  # steps and bookkeeping in one write
             backend.write_progress(fn.n_calls, prior_seconds + time.perf_counter() - t_start)
 
     check: Check | None = None
     prev_tau: np.ndarray | None = None
+    stop = _DeferredInterrupt()
     try:
+        stop.__enter__()
         if it > 0:
             # Rebuild the decision history: τ at the last regular check before `it`,
             # and a check at `it` itself if the interrupted run was due one there.
@@ -691,12 +728,19 @@ def run_emcee(
                 state = new_state
                 it += 1
                 bar.update(it)
+                if stop.requested:
+                    break
+            if stop.requested:  # the steps so far are saved by `finally`
+                raise KeyboardInterrupt(f"sampling interrupted after step {it}")
             check = evaluate(it, prev_tau)
             prev_tau = check.tau
             bar.set_info(check)
             bar.update(it, force=bar.tty)
             save_meta()
+        if stop.requested:  # Ctrl-C during the last check: still an interruption
+            raise KeyboardInterrupt(f"sampling interrupted after step {it}")
     finally:
+        stop.__exit__()
         save_meta()
         bar.close()
 

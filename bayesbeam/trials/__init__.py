@@ -35,6 +35,7 @@ _EXPORTS = {
     "NoiseFloor": ".noise",
     "NoiseFloorError": ".noise",
     "periodogram": ".modal_id",
+    "check_trial": ".checks",
     "read_trial": ".io",
     "RealDataError": ".realdata",
     "RealRecord": ".realdata",

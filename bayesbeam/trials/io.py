@@ -68,6 +68,34 @@ FORMAT_VERSION = 1
 # --------------------------------------------------------------------------------------
 # Reading
 # --------------------------------------------------------------------------------------
+#: Longest column name a header may hold to count as a CSV header (and be echoed).
+_MAX_NAME = 40
+
+
+def _looks_like_csv(names: list[str], body: list[str], delimiter: str) -> bool:
+    """Return True when a header reads as short column names over rows as wide.
+
+    A file that is not the trial's CSV (a path slip onto another file) must not have its
+    content echoed in an error message: only short, printable names of a header with at
+    least two columns, whose first data row has as many fields, are shown.
+    """
+    if len(names) < 2 or any(not n or len(n) > _MAX_NAME or not n.isprintable()
+                             for n in names):
+        return False
+    row = next((ln for ln in body if ln.strip() and not ln.lstrip().startswith("#")), None)
+    return row is None or len(row.split(delimiter)) == len(names)
+
+
+def _missing_column(csv_path: Path, role: str, col: str, names: list[str], body: list[str],
+                    delimiter: str) -> str:
+    """Return the message for a missing column (names echoed only from a CSV header)."""
+    if _looks_like_csv(names, body, delimiter):
+        return f"{role} {col!r} is not a column of {csv_path}; available columns: {names}"
+    return (f"no column {col!r} ({role}) in {csv_path}: it does not look like the CSV the "
+            f"trial describes (a header line of column names separated by {delimiter!r}, "
+            "then rows of numbers); check [signal] file and delimiter")
+
+
 def _read_csv(
     csv_path: Path, time_column: str, value_column: str, delimiter: str
 ) -> tuple[np.ndarray, np.ndarray, str]:
@@ -75,7 +103,13 @@ def _read_csv(
         raw = csv_path.read_bytes()
     except FileNotFoundError:
         raise TrialError(f"signal file {csv_path} not found") from None
-    text = raw.decode("utf-8-sig")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise TrialError(
+            f"signal file {csv_path} is not UTF-8 text (byte 0x{raw[err.start]:02x} at "
+            f"position {err.start}); save it as UTF-8 (plain ASCII column names are safest)"
+        ) from None
     lines = text.splitlines()
     header_at = next(
         (i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")),
@@ -87,9 +121,8 @@ def _read_csv(
     cols = []
     for role, col in (("time_column", time_column), ("value_column", value_column)):
         if col not in names:
-            raise TrialError(
-                f"{role} {col!r} is not a column of {csv_path}; available columns: {names}"
-            )
+            raise TrialError(_missing_column(csv_path, role, col, names, lines[header_at + 1:],
+                                             delimiter))
         cols.append(names.index(col))
     body = lines[header_at + 1 :]
     if not any(ln.strip() and not ln.lstrip().startswith("#") for ln in body):
@@ -136,7 +169,13 @@ def read_trial(path: str | Path) -> Trial:
         end, or an invalid beam; the message says how to fix it.
     """
     path = Path(path)
-    doc = read_toml(path, what="trial file", error=TrialError)
+    try:
+        doc = read_toml(path, what="trial file", error=TrialError)
+    except UnicodeDecodeError as err:  # tomllib decodes the bytes itself
+        raise TrialError(
+            f"trial file {path} is not UTF-8 text (byte 0x{err.object[err.start]:02x} at "
+            f"position {err.start}); save it as UTF-8"
+        ) from None
     unknown = sorted(set(doc) - set(_TOP_KEYS))
     if unknown:
         raise TrialError(f"{path}: unknown top-level keys {unknown}; allowed: {list(_TOP_KEYS)}")
@@ -188,7 +227,9 @@ def read_trial(path: str | Path) -> Trial:
         if key in beam_d:
             raise TrialError(f"{path}: give {key} in [signal] only, not in [beam]")
     length = beam_d.get("length")
-    if isinstance(length, (int, float)) and not isinstance(length, bool) and xs > length:
+    # Only a valid length can place the sensor beyond it; Beam names a zero or negative one.
+    if (isinstance(length, (int, float)) and not isinstance(length, bool) and length > 0
+            and xs > length):
         raise TrialError(
             f"{where} sensor_position {xs} m lies beyond the free end of the beam (length "
             f"{length} m); give the distance from the clamp in metres"
@@ -222,6 +263,8 @@ def read_trial(path: str | Path) -> Trial:
         "sha256": digest,
         "unit": unit,
         "trial_file": str(path.resolve()),
+        "time_column": time_column,
+        "value_column": value_column,
         "processing": [],
     }
     try:

@@ -30,7 +30,8 @@ The choices
    when the largest ordinate there of the analysis span's power spectrum (Hann window)
    exceeds :data:`~bayesbeam.trials.noise.PEAK_FACTOR` times the median ordinate within
    a factor 2 in frequency (the local floor: noise, leakage, the release's broadband
-   content). The analysis
+   content). When the motion ends before :data:`NOISE_TAIL` of the span (a long record,
+   mostly noise), the spectrum is that of the span up to the end of the motion. The analysis
    band is ``1.25 ×`` the highest seen mode that fits the sample budget
    (:data:`MAX_SAMPLES` over the analysis span) and the record's own band, the rate
    :data:`RATE_PER_BAND` (4) times the band (the anti-alias filter's pass band ends at
@@ -51,6 +52,21 @@ The choices
    offset (sensor zero, gravity on a tilted sensor) is fitted as a parameter
    (``offset``, the ``sensor_offset`` term). A trial with a declared state is taken as
    given (add ``sensor_offset`` to the model to fit one).
+
+The sample budget
+-----------------
+The automatic rate keeps the analysis within the budget (:data:`MAX_SAMPLES`, or
+``max_samples``). A record taken as it is (a declared initial state, or ``auto=False``)
+keeps its own stamps, and a given rate is kept as given; when either would take more
+samples than the budget, :func:`prepare` refuses with a :class:`PreprocessError` that
+names the count and the fixes (a lower rate or a decimation factor, a window, or a
+larger ``max_samples`` to accept the count) rather than applying the budget itself: a
+trial taken as given is not resampled behind its user's back (its declared state holds
+at ``t0`` at any rate, but the band, and with it the model, would change). The check
+comes after :func:`plan` (about a second and a few hundred MB on 2 million samples) and
+before any resampling or fit, whose memory grows with samples times walkers (a MAP
+search on 2 million samples passed 6 GB within 100 s). :func:`plan` itself does not
+refuse: ``bayesbeam inspect`` works on the raw stamps of any length.
 """
 
 from __future__ import annotations
@@ -89,6 +105,11 @@ MAX_SAMPLES = 16_384
 END_SNR = 3.0
 #: Length of the blocks of the end test, in periods of mode 1.
 BLOCK_PERIODS = 8.0
+#: When the motion ends before this fraction of the span, the modes are sought on the
+#: motion alone: a Hann window over a span that is mostly noise weights a decay at its
+#: start by almost nothing (500 s with 10 s of motion: below 4e-4 over the decay), and
+#: the largest of 10^5-10^6 noise ordinates in a mode's window then passes for its peak.
+NOISE_TAIL = 0.5
 #: Native steps longer than this many median steps are gaps (see :meth:`Trial.resample`).
 MAX_GAP_STEPS = 4.0
 #: Modes sought beyond the first (the nominal beam's ratios).
@@ -155,6 +176,10 @@ class Preprocessing:
         The choices fixed by the trial file or an option (not chosen here).
     loader : tuple of str
         What was done to the record before (``trial.source['processing']``).
+    mode1_bins : int
+        Bins of the (zero-padded) periodogram among which mode 1 was taken as the
+        largest ordinate: sets the false-alarm threshold of the mode-1 line
+        (:func:`bayesbeam.trials.checks.line_threshold`). 0: not recorded.
     """
 
     start: float
@@ -180,6 +205,7 @@ class Preprocessing:
     max_samples: int
     given: tuple[str, ...]
     loader: tuple[str, ...]
+    mode1_bins: int = 0
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return the record as JSON-ready dict (the ``preprocessing`` key of the outputs)."""
@@ -261,8 +287,11 @@ def nominal_f1(trial: Trial) -> float | None:
 
 
 def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
-                ) -> tuple[float, list[float], list[float], list[int]]:
-    """Return f1, the bending modes seen (Hz), their peak/floor ratios and mode numbers."""
+                ) -> tuple[float, list[float], list[float], list[int], int]:
+    """Return f1, the modes seen (Hz), their peak/floor ratios, mode numbers, f1's bins.
+
+    The last is the count of periodogram bins searched for mode 1.
+    """
     f, amp = periodogram(t, y)
     power = amp**2
     f_lo = 3.0 / float(t[-1] - t[0])
@@ -270,6 +299,16 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
     sel = (f > f_lo) & (f < band)
     if nominal is not None:
         sel &= (f > 0.5 * nominal) & (f < 2.0 * nominal)
+    if not np.any(sel) and nominal is not None:
+        # The nominal beam puts mode 1 outside what the record can show: a unit slip
+        # (E not in Pa, lengths not in m, times not in s) rather than a span to choose.
+        raise PreprocessError(
+            f"the beam's nominal first frequency {nominal:.3g} Hz (from [beam] E and the "
+            f"dimensions) is outside the record's spectrum ({f_lo:.3g}-"
+            f"{min(band, float(f[-1])):.3g} Hz); check E (Pa), lengths (m), masses (kg), "
+            "that the time column is in seconds, and that the analysis span ([analysis] "
+            "start/end or --window) holds a few periods"
+        )
     if not np.any(sel):
         raise PreprocessError(
             f"no spectrum to find mode 1 in (analysis {t[0]:.3f}-{t[-1]:.3f} s, band "
@@ -292,7 +331,7 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
             seen.append(float(f[i]))
             strength.append(ratio)
             numbers.append(k + 1)
-    return f1, seen, strength, numbers
+    return f1, seen, strength, numbers, int(np.count_nonzero(sel))
 
 
 def _noise_sd(t: np.ndarray, y: np.ndarray, f1: float) -> tuple[float, float]:
@@ -302,6 +341,24 @@ def _noise_sd(t: np.ndarray, y: np.ndarray, f1: float) -> tuple[float, float]:
     if np.count_nonzero(last) < 64:
         return math.nan, block
     return float(noise_floor(t[last], y[last], max_modes=4).sd), block
+
+
+def _motion_span(trial: Trial, t: np.ndarray, y: np.ndarray, span: np.ndarray
+                 ) -> np.ndarray:
+    """Return the part of ``span`` (a mask on ``t``) where the modes are sought.
+
+    The span up to the end of the motion (:func:`_end_of_motion`, blocks of
+    :data:`BLOCK_PERIODS` periods of the nominal mode 1, else 0.5 s) when that comes
+    before :data:`NOISE_TAIL` of the span; else the whole span.
+    """
+    nominal = nominal_f1(trial)
+    ts, ys = t[span], y[span]
+    # Without a nominal E the blocks are 0.5 s (_noise_sd's shortest).
+    sd, block = _noise_sd(ts, ys, nominal if nominal else math.inf)
+    end, _ = _end_of_motion(ts, ys, sd, block)
+    if end - ts[0] > NOISE_TAIL * (ts[-1] - ts[0]):
+        return span
+    return span & (t <= end)
 
 
 def _end_of_motion(t: np.ndarray, y: np.ndarray, sd: float, block: float
@@ -396,7 +453,10 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
             f"the analysis span from {start:.4f} s holds {np.count_nonzero(span)} samples "
             f"(record {t[0]:.4f}-{t[-1]:.4f} s); choose start/end inside the record"
         )
-    f1, seen, strength, numbers = _seen_modes(trial, t[span], y[span], native_band)
+    # A record that is mostly noise after the motion: its modes are sought on the motion.
+    search = span if end is not None else _motion_span(trial, t, y, span)
+    f1, seen, strength, numbers, n_bins = _seen_modes(trial, t[search], y[search],
+                                                      native_band)
     noise_sd, block = _noise_sd(t[span], y[span], f1)
     if end is not None:
         end, end_how = float(end), "given"
@@ -414,8 +474,8 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
     cap = min(native_band, budget / (end - start) / RATE_PER_BAND)
     if rate is not None:
         rate = float(rate)
-        if not rate > 0:
-            raise PreprocessError(f"rate must be a positive number of Hz, got {rate!r}")
+        if not 0 < rate < math.inf:
+            raise PreprocessError(f"rate must be a positive finite number of Hz, got {rate!r}")
         band = min(native_band, BANDWIDTH_PER_RATE * rate)
         rate_how = "given"
     elif not auto:
@@ -469,6 +529,7 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
         n_samples_in=int(t.size),
         n_samples=n_out, max_samples=int(budget), given=fixed,
         loader=tuple(str(s) for s in trial.source.get("processing", [])),
+        mode1_bins=int(n_bins),
     )
 
 
@@ -521,6 +582,37 @@ def apply(trial: Trial, pre: Preprocessing) -> Trial:
     return out
 
 
+def _check_budget(trial: Trial, given: dict[str, Any], pre: Preprocessing) -> None:
+    """Refuse a count over the budget that the automatic rate did not choose."""
+    if pre.n_samples <= pre.max_samples:
+        return
+    rate_given = _option(trial, given, "rate") is not None
+    auto = _option(trial, given, "auto")
+    if auto is None:
+        auto = _declared_initial(trial) is None
+    if auto and not rate_given:  # the plan's own rate (module docstring, choice 3)
+        return
+    span = pre.end - pre.start
+    if rate_given:
+        what = f"the given rate {pre.rate:.4g} Hz over {span:.4g} s"
+    else:
+        what = (f"the record's own stamps over {span:.4g} s, "
+                + ("a trial with a declared initial state taken as given"
+                   if _option(trial, given, "auto") is None else "automatic choices off"))
+    max_rate = pre.max_samples / span
+    unit = 10.0 ** (math.floor(math.log10(max_rate)) - 2)  # three digits, rounded down
+    fixes = f"--rate {math.floor(max_rate / unit) * unit:g} or lower"
+    if trial.is_uniform:
+        fixes += f", --decimate {math.ceil(1.0 / (max_rate * trial.dt))} or more"
+    raise PreprocessError(
+        f"{trial.name!r}: the analysis would hold {pre.n_samples:,} samples ({what}), more "
+        f"than the budget of {pre.max_samples:,}; a fit's memory and time grow with them "
+        f"(gigabytes at millions): analyse fewer with {fixes} ([analysis] rate in the "
+        "trial file), a shorter span (--window T0 T1), or accept them all with "
+        f"--max-samples {pre.n_samples}"
+    )
+
+
 def prepare(trial: Trial, **given: Any) -> tuple[Trial, Preprocessing]:
     """Plan and apply in one call: the analysis record and the record of the choices.
 
@@ -534,7 +626,14 @@ def prepare(trial: Trial, **given: Any) -> tuple[Trial, Preprocessing]:
     -------
     tuple of (Trial, Preprocessing)
         ``Preprocessing.n_samples`` is the count of the prepared record.
+
+    Raises
+    ------
+    PreprocessError
+        As :func:`plan`, and for a record taken as given or a given rate that would
+        analyse more samples than the budget (module docstring, "The sample budget").
     """
     pre = plan(trial, **given)
+    _check_budget(trial, given, pre)
     out = apply(trial, pre)
     return out, dataclasses.replace(pre, n_samples=int(out.times.size))

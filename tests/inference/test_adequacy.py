@@ -119,3 +119,61 @@ def test_in_band_whitens_decimated_noise_and_keeps_a_line():
     assert np.max(np.abs(lb)) == pytest.approx(0.3, rel=1e-6)
     # A band that reaches the Nyquist frequency leaves the series as it is.
     assert in_band(z, d.dt, 0.5 / d.dt)[0] is z
+
+
+def test_prior_bound_pileup_on_constructed_posteriors():
+    from bayesbeam.inference.adequacy import prior_bound_pileup
+    from bayesbeam.stats.families import LogUniform, Normal, Uniform
+    from bayesbeam.stats.priors import PriorSet
+
+    rng = np.random.default_rng(0)
+    priors = PriorSet({"gamma": LogUniform(50.0, 60.0), "rho": Uniform(0.0, 0.995),
+                       "shift": Uniform(-1.0, 1.0), "offset": Normal(0.0, 1.0),
+                       "added_mass_position": Uniform(0.0, 0.4)})
+    n = 4000
+    lo_g, hi_g = np.log(50.0), np.log(60.0)
+    flat = np.column_stack([rng.uniform(lo_g, hi_g, n), rng.uniform(0, 0.995, n),
+                            rng.uniform(-1, 1, n), rng.normal(0, 1, n),
+                            rng.uniform(0, 0.4, n)])
+    assert prior_bound_pileup(priors, flat) == []  # 1 % of a flat posterior per edge
+    piled = flat.copy()
+    # gamma against its lower bound (the data want less damping than the prior allows),
+    # shift against its upper bound, rho at zero (no correlation: an answer), the mass
+    # at the tip (a physical limit, not a prior's).
+    piled[:, 0] = lo_g + np.abs(rng.normal(0, 0.002 * (hi_g - lo_g), n))
+    piled[:, 2] = 1.0 - np.abs(rng.normal(0, 0.01, n))
+    piled[:, 1] = np.abs(rng.normal(0, 1e-3, n))
+    piled[:, 4] = 0.4 - np.abs(rng.normal(0, 1e-4, n))
+    out = prior_bound_pileup(priors, piled.reshape(40, 100, 5))
+    assert [(p["param"], p["side"]) for p in out] == [("gamma", "lower"), ("shift", "upper")]
+    assert out[0]["bound"] == pytest.approx(50.0) and out[0]["share"] > 0.99
+    assert out[1]["bound"] == 1.0 and 0.9 < out[1]["share"] < 0.99
+
+
+def test_assess_flags_a_prior_bound_and_a_small_explained_variance(gaussian_cloud_result):
+    from bayesbeam.stats.families import LogUniform
+
+    rng = np.random.default_rng(1)
+    trial = _record(n=1024)
+    # gamma's prior ends just above the truth: the posterior (a tight cloud at the
+    # truth) sits on the bound.
+    pb = Problem(trial, "viscous+kv", {"gamma": LogUniform(TRUE["gamma"] / 10,
+                                                           TRUE["gamma"] * 1.0001)},
+                 n_elements=32)
+    truth = np.array([{**TRUE, "sigma": NOISE}[n] for n in pb.names])
+    ad = assess(pb, gaussian_cloud_result(pb, truth, 1e-6), rng=rng, n_draws=50)
+    assert not ad["ok"]
+    assert ad["prior_bounds"][0]["param"] == "gamma"
+    assert ad["prior_bounds"][0]["side"] == "upper"
+    assert any(r.startswith("posterior of gamma piles on its prior's upper bound")
+               and "widen it" in r for r in ad["reasons"])
+    assert ad["explained_variance"] > 0.9
+    # σ of the order of the signal: the model explains little of it.
+    big = np.std(pb.data) * 0.9
+    pb2 = Problem(trial, "viscous+kv", n_elements=32)
+    loud = np.array([{**TRUE, "sigma": big}[n] for n in pb2.names])
+    ad2 = assess(pb2, gaussian_cloud_result(pb2, loud, 1e-6), rng=rng, n_draws=50)
+    assert ad2["explained_variance"] == pytest.approx(1 - 0.81, abs=1e-6)
+    assert any(r.startswith("the model explains only 19 % of the signal's variance")
+               for r in ad2["reasons"])
+    assert ad2["prior_bounds"] == []

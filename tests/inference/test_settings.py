@@ -6,10 +6,14 @@ import inspect
 import pytest
 
 from bayesbeam.inference.settings import (
+    COSTLY_ELEMENTS,
     DIAGNOSIS_DEFAULTS,
     FIT_DEFAULTS,
+    MAX_ELEMENTS,
     FitSettings,
     fit_settings,
+    mesh_cost,
+    mesh_cost_text,
     walker_count,
 )
 
@@ -59,3 +63,28 @@ def test_every_entry_point_reads_its_defaults_from_one_object():
         args = parser.parse_args([command, *argv])
         assert (args.elements, args.target_ess, args.max_steps) == (
             budget.n_elements, budget.target_ess, budget.max_steps), command
+
+
+def test_mesh_cost_grows_with_the_dense_state():
+    # Memory: about 5.5 float64 arrays of (4N)^2 per parameter set; 4 x for 2 x the mesh,
+    # and in proportion to the sets.
+    mem16, t16 = mesh_cost(16)
+    mem32, t32 = mesh_cost(32)
+    assert mem16 == pytest.approx(5.5 * 8 * 64**2 * 32)
+    assert mem32 == pytest.approx(4 * mem16)
+    assert mesh_cost(16, n_sets=64)[0] == pytest.approx(2 * mem16)
+    assert t16 < t32 < mesh_cost(200)[1]
+    # The calibration points (2-core machine): ~0.9 GB and ~12 s per step at 200.
+    mem, t = mesh_cost(200)
+    assert 0.85e9 < mem < 0.95e9 and 11 < t < 13
+    assert mesh_cost_text(500).startswith("2000 dense states: about 5.6 GB and 90 s per "
+                                          "evaluation of 32 parameter sets")
+
+
+def test_element_limits_bracket_the_mesh_ladder():
+    from bayesbeam.inference.mesh import LADDER
+
+    # Automatic refinement reaches the ladder's finest mesh; the limit leaves room for a
+    # start beyond it, the note starts within it.
+    assert FIT_DEFAULTS.n_elements < COSTLY_ELEMENTS <= LADDER[-1] < MAX_ELEMENTS
+    assert MAX_ELEMENTS <= 2 * LADDER[-1] + 8

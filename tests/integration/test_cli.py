@@ -137,7 +137,7 @@ def test_simulate_writes_trial(beam_toml, tmp_path, capsys):
         (["--set", f"E={E}", "--set", "gamma=1", "--set", "foo=2"], "not parameters"),
         (["--set", "E=-1", "--set", "gamma=1"], "admissible range"),
         (["--set", "gamma=1"], "give E"),
-        (["--set", f"E={E}", "--set", "gamma=1", "--elements", "0"], "n_elements"),
+        (["--set", f"E={E}", "--set", "gamma=1", "--elements", "0"], "--elements"),
     ],
 )
 def test_modes_bad_input_exits_2_with_one_line(beam_toml, capsys, args, match):
@@ -198,3 +198,17 @@ def test_console_entry_points(beam_toml):
     )
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "Traceback" not in res.stderr
+
+
+def test_version_and_typed_marker():
+    import importlib.metadata
+    from pathlib import Path
+
+    import bayesbeam
+
+    res = subprocess.run([sys.executable, "-m", "bayesbeam", "--version"],
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode == 0
+    assert res.stdout.strip() == f"bayesbeam {importlib.metadata.version('bayesbeam')}"
+    # PEP 561: type checkers read the package's hints only where py.typed is installed
+    assert (Path(bayesbeam.__file__).parent / "py.typed").is_file()

@@ -570,6 +570,23 @@ def test_damping_ratios_sorted_and_first_frequencies():
     assert f[0] == pytest.approx(W1 / (2 * np.pi), rel=1e-3)
 
 
+def test_overdamped_modes_are_counted():
+    # Uniform beam, viscous: ζ_n = gamma / (2 rhoA ω_n) (physics.md §2); the modes with
+    # ζ_n > 1 have two real eigenvalues each and no frequency.
+    w = _fe_frequencies()
+    gamma = 2 * RHOA * w[2] * 1.5  # modes 1-3 above critical, the rest below
+    f, z, n_over = modal_properties(BEAM, "viscous", {"E": E, "gamma": gamma},
+                                    return_overdamped=True)
+    assert n_over == int(np.sum(gamma / (2 * RHOA * w) > 1)) == 3
+    assert f.size + n_over == w.size and np.all(z < 1)
+    assert np.allclose(f, w[3:] / (2 * np.pi), rtol=1e-9, atol=0)
+    f2, z2 = modal_properties(BEAM, "viscous", {"E": E, "gamma": gamma})  # the default
+    assert np.array_equal(f2, f) and np.array_equal(z2, z)
+    _, _, n_none = Forward(BEAM, "viscous", np.arange(3) * 0.01).modes(
+        {"E": E, "gamma": 0.0, "w0": W0}, return_overdamped=True)
+    assert n_none == 0
+
+
 def test_modal_properties_errors():
     with pytest.raises(ForwardError, match="c_d"):
         modal_properties(BEAM, "viscous+kv", {"E": E, "gamma": GAMMA})

@@ -186,3 +186,21 @@ def test_report_screenshot_is_written_and_not_blank(outdir, tmp_path):
     # (a blank page has none; 2 % is far below what the fixture's page shows).
     assert np.mean(gray < 0.9) > 0.02
     assert gray.std() > 0.05
+
+
+def test_outputs_of_two_runs_in_one_folder_are_kept_apart(outdir):
+    """A compare and then a fit of another model into one folder: the page says so and
+    shows each run's tables under its own run id instead of one mixed result."""
+    folder = outdir / "beam1-trial1"
+    comp = json.loads((folder / "comparison.json").read_text())
+    (folder / "comparison.json").write_text(json.dumps({**comp, "run_id": "compare-A"}))
+    summary = json.loads((folder / "viscous" / "summary.json").read_text())
+    (folder / "summary.json").write_text(json.dumps({**summary, "run_id": "fit-B"}))
+    text = build_report(outdir)
+    assert "holds the outputs of 2 different runs" in text
+    assert "compare-A: comparison.json; fit-B: summary.json" in text
+    a, b = text.index("<h3>Run compare-A</h3>"), text.index("<h3>Run fit-B</h3>")
+    assert a < text.index("Model comparison") < b  # the comparison table under its run
+    # one run per folder: no warning
+    (folder / "summary.json").write_text(json.dumps({**summary, "run_id": "compare-A"}))
+    assert "different runs" not in build_report(outdir)

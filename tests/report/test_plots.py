@@ -121,3 +121,28 @@ def test_residual_summary_rejects_bad_input():
         residual_summary(np.zeros(10), np.arange(9.0))
     with pytest.raises(PlotError, match="at least 8"):
         residual_summary(np.zeros(5), np.arange(5.0))
+
+
+def test_residual_spectrum_caption_states_the_residual_rms(tmp_path, monkeypatch):
+    """The caption's RMS is the residuals' (it once printed an alias frequency: a loop
+    over modes above Nyquist reused the residuals' variable)."""
+    from matplotlib.figure import Figure
+
+    captions = []
+    real_savefig = Figure.savefig
+
+    def keep_caption(fig, *args, **kwargs):
+        captions.extend(t.get_text() for t in fig.texts)
+        return real_savefig(fig, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", keep_caption)
+    t = np.arange(1280) * 0.004
+    trial = Trial(times=t, values=np.zeros_like(t), quantity="displacement", beam=_beam(),
+                  name="x")
+    resid = 1.3e-5 * np.random.default_rng(3).standard_normal(t.size)
+    plot_residual_spectrum(trial, resid, tmp_path / "r.png",
+                           mode_freqs_hz=np.array([11.0, 69.0, 193.0, 378.0]))  # 2 > Nyquist
+    (caption,) = captions
+    rms = float(caption.split("RMS ")[1].split()[0])
+    assert rms == pytest.approx(np.sqrt(np.mean(resid**2)), rel=1e-2)  # 3 printed digits
+    assert caption.split("RMS ")[1].split()[1] == "m"

@@ -18,10 +18,13 @@ from bayesbeam.physics.fem import assemble
 from bayesbeam.trials.io import read_trial, write_trial
 from bayesbeam.trials.preprocess import (
     MAX_GAP_STEPS,
+    MAX_SAMPLES,
     RATE_PER_BAND,
     SETTLE_S,
     PreprocessError,
+    _ratios,
     apply,
+    nominal_f1,
     plan,
     prepare,
 )
@@ -199,3 +202,59 @@ def test_resample_drops_only_samples_near_gaps():
     np.testing.assert_array_equal(holed.values, full.values[~near])
     with pytest.raises(TrialError, match="max_gap must be a positive"):
         tr.resample(0.004, max_gap=0.0)
+
+
+def _long_decay(duration: float = 120.0, fs: float = 1000.0, **trial_kw) -> Trial:
+    """A record that is mostly noise: 10 s of decay of modes 1 and 2, then noise.
+
+    The nominal beam's modes (f1 and the nominal ratio f2/f1), 1 % and 0.3 % damping,
+    released at t = 0.5 s; offset 0.3, white noise 0.05 (SI, acceleration).
+    """
+    beam = _beam()
+    probe = Trial(times=np.arange(4) / fs, values=np.zeros(4), quantity="acceleration",
+                  beam=beam)
+    f1 = nominal_f1(probe)
+    f2 = f1 * float(_ratios(probe)[1])
+    t = np.arange(round(duration * fs)) / fs
+    tt = np.clip(t - 0.5, 0.0, None)
+    y = (50 * np.exp(-0.01 * 2 * np.pi * f1 * tt) * np.cos(2 * np.pi * f1 * tt)
+         + 20 * np.exp(-0.003 * 2 * np.pi * f2 * tt) * np.cos(2 * np.pi * f2 * tt))
+    y = np.where(t < 0.5, 0.0, y) + 0.3 + 0.05 * np.random.default_rng(5).standard_normal(t.size)
+    return Trial(times=t, values=y, quantity="acceleration", beam=beam, name="long", **trial_kw)
+
+
+def test_modes_of_a_record_mostly_noise_are_sought_on_the_motion(monkeypatch):
+    trial = _long_decay()
+    f1 = nominal_f1(trial)
+    f2 = f1 * float(_ratios(trial)[1])
+    pre = plan(trial)
+    assert pre.modes_seen == pytest.approx([f1, f2], rel=2e-3)
+    assert pre.mode_strength[0] > 1e6 and pre.mode_strength[1] > 1e4
+    assert pre.band > f2 and pre.n_samples <= MAX_SAMPLES
+    # The Hann window over all 120 s (NOISE_TAIL = 0: never trimmed) weights the decay by
+    # almost nothing: mode 2 is lost and mode 1 stands ~100 x its floor, not 1e7 x.
+    monkeypatch.setattr("bayesbeam.trials.preprocess.NOISE_TAIL", 0.0)
+    old = plan(trial)
+    assert len(old.modes_seen) == 1 and old.mode_strength[0] < 1e3
+
+
+def test_record_taken_as_given_beyond_the_budget_is_refused():
+    trial = _long_decay(duration=20.0, initial={"tip_deflection": 5e-3})
+    n = trial.times.size
+    with pytest.raises(PreprocessError, match=(
+            rf"'long': the analysis would hold {n:,} samples \(the record's own stamps over "
+            r"20 s, a trial with a declared initial state taken as given\), more than the "
+            r"budget of 16,384; .*--rate 819 or lower, --decimate 2 or more .*--window T0 "
+            rf"T1.*--max-samples {n}")):
+        prepare(trial)
+    with pytest.raises(PreprocessError, match="automatic choices off"):
+        prepare(dataclasses.replace(trial, initial={}), auto=False)
+    with pytest.raises(PreprocessError, match=r"the given rate 1000 Hz over 20 s"):
+        prepare(trial, rate=1000.0)
+    # The fixes it names: a budget that holds the record, a lower rate.
+    out, pre = prepare(trial, max_samples=n)
+    assert out.times.size == n and pre.rate is None
+    out, _ = prepare(trial, rate=819.0)
+    assert out.times.size <= MAX_SAMPLES
+    # The plan itself does not refuse (bayesbeam inspect works on any raw stamps).
+    assert plan(trial).n_samples == n

@@ -10,7 +10,11 @@ import pytest
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import ForwardError
 from bayesbeam.trials.io import read_trial
-from bayesbeam.trials.synthetic import simulate_signal, simulate_trial
+from bayesbeam.trials.synthetic import (
+    MAX_SIMULATED_SAMPLES,
+    simulate_signal,
+    simulate_trial,
+)
 
 L = 0.3048
 E = 6.2e10
@@ -125,10 +129,26 @@ def test_missing_and_extra_parameters_raise():
         ({"dt": -1e-3}, "dt"),
         ({"dt": np.nan}, "dt"),
         ({"noise_sd": -1.0}, "noise_sd"),
+        ({"noise_sd": np.inf}, "noise_sd"),
+        ({"tip_deflection": np.nan}, "tip_deflection"),
         ({"duration": 1e-3}, "fewer than 2 samples"),
     ],
 )
 def test_bad_settings_raise(kwargs, match):
     with pytest.raises(ForwardError, match=match):
         simulate_trial(BEAM, "viscous", {"gamma": GAMMA}, **kwargs)
+
+
+def test_sample_count_is_capped_before_anything_is_allocated():
+    # 1e9 s at the default dt is 2.56e11 samples (2 TB for the times alone): refused at
+    # once, naming the count, the limit and both fixes.
+    with pytest.raises(ForwardError, match=r"2\.56e\+11 samples .* above the limit of "
+                       r"10,000,000 .*--duration.*--dt"):
+        simulate_trial(BEAM, "viscous", {"gamma": GAMMA}, duration=1e9)
+    dt = 1e-3
+    trial = simulate_trial(BEAM, "viscous", {"gamma": GAMMA}, duration=2e-3, dt=dt)
+    assert trial.times.size == 2
+    with pytest.raises(ForwardError, match="limit"):
+        simulate_trial(BEAM, "viscous", {"gamma": GAMMA}, dt=dt,
+                       duration=(MAX_SIMULATED_SAMPLES + 1) * dt)
 
