@@ -703,9 +703,10 @@ def run_emcee(
             target_ess=target_ess,
         )
 
-    def save_meta() -> None:
+    def save_meta(final: bool = False) -> None:
         if isinstance(backend, CheckpointBackend):  # steps and bookkeeping in one write
-            backend.write_progress(fn.n_calls, prior_seconds + time.perf_counter() - t_start)
+            backend.write_progress(fn.n_calls, prior_seconds + time.perf_counter() - t_start,
+                                   final=final)
 
     check: Check | None = None
     prev_tau: np.ndarray | None = None
@@ -741,7 +742,7 @@ def run_emcee(
             raise KeyboardInterrupt(f"sampling interrupted after step {it}")
     finally:
         stop.__exit__()
-        save_meta()
+        save_meta(final=True)
         bar.close()
 
     if check is None:  # unreachable: the loop runs at least once when it < max_steps
