@@ -258,3 +258,34 @@ def test_ctrl_c_during_sampling_keeps_stdout_clean_and_resumes(trial, tmp_path):
     done = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout)["model"] == "viscous"
+
+
+@pytest.mark.slow
+def test_kill_during_output_writing_loses_nothing(trial, tmp_path):
+    """The process dies (os._exit: no cleanup, like kill -9) as it starts writing
+    posterior.nc: the finished chain is whole on disk, no partial file is left, and
+    --resume writes the outputs from that chain without sampling again (~40 s)."""
+    import h5py
+
+    out = tmp_path / "out"
+    args = ["fit", str(trial), "--model", "viscous", "-o", str(out), "--max-steps", "200",
+            "--fixed-mesh"]
+    die = ("import os, sys; import bayesbeam.inference.results as r; "
+           "r.FitResult.save = lambda *a, **k: os._exit(9); "
+           "from bayesbeam.cli.main import main; sys.exit(main(sys.argv[1:]))")
+    killed = subprocess.run([sys.executable, "-c", die, *args], capture_output=True,
+                            text=True, timeout=600)
+    assert killed.returncode == 9, killed.stderr
+    assert not (out / "posterior.nc").exists() and not (out / "summary.json").exists()
+    with h5py.File(out / "chain.h5") as f:
+        chain = f["mcmc/chain"][:]
+        assert f["mcmc"].attrs["iteration"] == 200
+    assert (out / LOCK_NAME).is_file()  # what kill -9 leaves behind
+    resumed = subprocess.run([sys.executable, "-m", "bayesbeam", *args, "--resume"],
+                             capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "took over the lock of fit run" in resumed.stderr
+    assert "emcee: step" not in resumed.stderr  # nothing sampled again
+    with h5py.File(out / "chain.h5") as f:
+        assert (f["mcmc/chain"][:] == chain).all()
+    assert (out / "posterior.nc").is_file() and (out / "summary.json").is_file()
