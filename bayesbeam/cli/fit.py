@@ -16,11 +16,15 @@ the finished steps; ``--resume`` continues them); then write into ``OUTDIR``:
 ``posterior.nc``            ArviZ tree (NetCDF): posterior thinned to about 1000
                             draws, pointwise log-likelihood of those draws,
                             posterior predictive, observed data, prior draws
-``summary.json``            summary and diagnostics of the full (unthinned) chain
+``summary.json``            summary and diagnostics of the full (unthinned) chain;
+                            ``modes``: f_k (Hz) and ζ_k per mode, with the data's
+                            own estimates (:mod:`bayesbeam.inference.modal`)
 ``corner.png``              corner plot of the physical posterior
 ``trace.png``               walker traces
 ``fit.png``                 data, posterior-predictive band, residuals
 ``residual_spectrum.png``   residual spectrum with the model's modal frequencies
+``zeta_vs_f.png``           ζ_k against f_k (log-log, 90 % intervals, data overlay,
+                            slopes of viscous and Kelvin–Voigt damping)
 ``run.json``                the options of the run, checked on ``--resume``
 ``chain.h5``                emcee checkpoint
 ==========================  ===========================================================
@@ -29,7 +33,7 @@ Output: the summary table (or, with ``--json``, the record of
 :meth:`bayesbeam.inference.results.FitResult.to_json_dict`: ``model``, ``posterior``
 ({name: {mean, sd, q05, q50, q95}}), ``ess_min``, ``tau_max``, ``rhat_max``,
 ``converged``, ``seconds`` (sampling wall time), plus ``total_seconds`` (the whole
-command), diagnostics, MAP, priors, settings and provenance). A run that stops at
+command), ``modes``, diagnostics, MAP, priors, settings and provenance). A run that stops at
 ``--max-steps`` before converging prints ``WARNING: ... NOT CONVERGED: <reason>`` on
 stderr and still exits 0 with all files written.
 
@@ -57,10 +61,6 @@ __all__ = ["FitCLIError", "register", "run"]
 LOGLIK_DRAWS = 1000
 #: Upper bound on stored (draws x samples) values per observation group (~200 MB).
 MAX_VALUES = 25_000_000
-#: Draws of the posterior-predictive group and of the fit plot.
-PPC_DRAWS = 200
-#: Prior draws stored in posterior.nc.
-PRIOR_DRAWS = 1000
 
 
 class FitCLIError(ValueError):
@@ -189,7 +189,7 @@ def _observation_groups(problem: Any, result: Any, rng: Any) -> dict[str, Any]:
     import numpy as np
 
     from bayesbeam.inference.fit import thin_result
-    from bayesbeam.inference.predictive import predictive_draws
+    from bayesbeam.inference.predictive import PPC_DRAWS, predictive_group
 
     T = problem.data.size
     ndim = result.chain.ndim
@@ -202,12 +202,7 @@ def _observation_groups(problem: Any, result: Any, rng: Any) -> dict[str, Any]:
     for i in range(0, U.shape[0], batch):
         ll[i : i + batch] = problem.log_likelihood_pointwise(U[i : i + batch])
     ll = ll.reshape(c.nsteps, c.nwalkers, T).swapaxes(0, 1)
-    # Posterior predictive for ArviZ: (walker, draw, T), a few steps of every walker.
-    steps = max(1, min(c.nsteps, PPC_DRAWS // c.nwalkers))
-    pick = np.linspace(0, c.nsteps - 1, steps).round().astype(int)
-    Up = c.samples[pick].reshape(-1, ndim)
-    _, _, y_rep = predictive_draws(problem, Up, rng)
-    pp = y_rep.reshape(steps, c.nwalkers, T).swapaxes(0, 1)
+    pp = predictive_group(problem, c.samples, rng, max_draws=PPC_DRAWS)
     return {"thin": thin, "log_likelihood": ll, "posterior_predictive": pp}
 
 
@@ -231,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam._util import write_text_atomic
     from bayesbeam.cli.outdir import stamp
     from bayesbeam.inference.fit import fit
-    from bayesbeam.inference.predictive import posterior_predictive
+    from bayesbeam.inference.predictive import PPC_DRAWS, PRIOR_DRAWS, posterior_predictive
     from bayesbeam.inference.problem import Problem, default_priors
     from bayesbeam.physics.models import parse_model
     from bayesbeam.report.amplitude_plots import write_model_overlays
@@ -292,6 +287,12 @@ def run(args: argparse.Namespace) -> int:
     payload["preprocessing"] = pre.to_json_dict()
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["posterior_nc_draws"] = int(groups["thin"].chain.nsteps * groups["thin"].chain.nwalkers)
+    # f_k and zeta_k of the first modes with uncertainty (and the data's own estimates).
+    from bayesbeam.inference.modal import modal_posterior
+    from bayesbeam.inference.modal_plots import plot_zeta_vs_f
+
+    modal = modal_posterior(problem, result)
+    payload["modes"] = modal.to_json_dict()
     # summary.json describes the full chain (posterior.nc holds the thinned draws).
     write_text_atomic(outdir / "summary.json", json.dumps(payload, indent=2, allow_nan=False)
                       + "\n")
@@ -303,6 +304,8 @@ def run(args: argparse.Namespace) -> int:
     plot_residual_spectrum(trial, resid, outdir / "residual_spectrum.png",
                            mode_freqs_hz=_mode_freqs(problem, result))
     write_model_overlays(trial, {model.name: np.median(y_model, axis=0)}, outdir, say=opts.say)
+    if plot_zeta_vs_f(modal, outdir / "zeta_vs_f.png", title=f"{trial.name}: {model.name}") is None:
+        opts.say(f"{model.name}: no zeta_vs_f.png: {modal.reason}")
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["outdir"] = str(outdir)
 
@@ -311,7 +314,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(result)
         print(f"results in {outdir}/ (posterior.nc, summary.json, corner.png, trace.png, "
-              f"fit.png, residual_spectrum.png); {payload['total_seconds']:.1f} s in total")
+              f"fit.png, residual_spectrum.png, zeta_vs_f.png); "
+              f"{payload['total_seconds']:.1f} s in total")
     if not result.chain.converged:
         why = reasons[0] if reasons else "convergence criteria not met"
         print(f"WARNING: {model.name}: NOT CONVERGED: {why}", file=sys.stderr)

@@ -359,8 +359,54 @@ class Comparison:
             fig.savefig(tmp, dpi=dpi)
         return path
 
+    def modal_posteriors(self, trial: Trial, **kw: Any) -> dict[str, Any]:
+        """Posterior of ``f_k`` and ``ζ_k`` per mode of every model (the ζ-vs-f picture).
+
+        A :class:`ModelScore` keeps no Problem: each is rebuilt from the fit as
+        :func:`evaluate` builds one from a ready result (its priors, mesh and initial
+        condition), on ``trial``.
+
+        Parameters
+        ----------
+        trial : Trial
+            The trial the models were compared on (after any preprocessing).
+        **kw
+            Passed to :func:`bayesbeam.inference.modal.modal_posterior` (``n_draws``,
+            ``n_modes``, ``data``).
+
+        Returns
+        -------
+        dict
+            ``{model: ModalPosterior}`` in the order of :attr:`scores`.
+
+        Raises
+        ------
+        CompareError
+            If ``trial`` has another number of samples than the compared one.
+        """
+        from bayesbeam.inference.modal import modal_posterior
+        from bayesbeam.inference.problem import Problem
+        from bayesbeam.inference.settings import FIT_DEFAULTS
+
+        out = {}
+        for s in self.scores:
+            if s.n_data != trial.times.size:
+                raise CompareError(
+                    f"{s.name} was scored on {s.n_data} samples; the trial given has "
+                    f"{trial.times.size}: pass the (preprocessed) trial of the comparison"
+                )
+            r = s.result
+            problem = Problem(
+                trial, r.model, r.priors,
+                n_elements=int(r.settings.get("n_elements", FIT_DEFAULTS.n_elements)),
+                initial=str(r.settings.get("initial", FIT_DEFAULTS.initial)),
+            )
+            out[s.name] = modal_posterior(problem, r, **kw)
+        return out
+
     def save(self, outdir: str | Path, *, fits: bool = True,
-             extra: dict[str, Any] | None = None) -> dict[str, Path]:
+             extra: dict[str, Any] | None = None, trial: Trial | None = None
+             ) -> dict[str, Path]:
         """Write ``comparison.{json,txt,html,png}`` and each model's fit.
 
         Parameters
@@ -372,11 +418,16 @@ class Comparison:
             ``summary.json``).
         extra : dict, optional
             Further JSON-ready keys of ``comparison.json`` (e.g. ``preprocessing``).
+        trial : Trial, optional
+            The compared trial: then ``comparison.json`` gets ``modes`` ({model: the
+            record of :meth:`modal_posteriors`}) and ``zeta_vs_f.png`` shows ζ_k against
+            f_k of every model (:func:`bayesbeam.inference.modal_plots.plot_zeta_vs_f`).
 
         Returns
         -------
         dict
-            ``json``, ``txt``, ``html``, ``png`` and ``fit:<model>`` paths.
+            ``json``, ``txt``, ``html``, ``png``, ``zeta_vs_f`` (when written) and
+            ``fit:<model>`` paths.
         """
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
@@ -386,11 +437,11 @@ class Comparison:
             "html": outdir / "comparison.html",
             "png": outdir / "comparison.png",
         }
-        write_text_atomic(
-            paths["json"],
-            json.dumps({**self.to_json_dict(), **(extra or {})}, indent=2, allow_nan=False)
-            + "\n",
-        )
+        record = {**self.to_json_dict(), **(extra or {})}
+        modal = None if trial is None else self.modal_posteriors(trial)
+        if modal is not None:
+            record["modes"] = {name: m.to_json_dict() for name, m in modal.items()}
+        write_text_atomic(paths["json"], json.dumps(record, indent=2, allow_nan=False) + "\n")
         write_text_atomic(paths["txt"], str(self) + "\n")
         write_text_atomic(
             paths["html"],
@@ -398,9 +449,15 @@ class Comparison:
             "comparison</title></head><body>\n" + self._repr_html_() + "\n</body></html>\n",
         )
         self.plot(paths["png"])
+        if modal is not None:
+            from bayesbeam.inference.modal_plots import plot_zeta_vs_f
+
+            if plot_zeta_vs_f(modal, outdir / "zeta_vs_f.png", title=f"{trial.name}: "
+                              "damping ratio against frequency") is not None:
+                paths["zeta_vs_f"] = outdir / "zeta_vs_f.png"
         if fits:
             for s in self.scores:
-                saved = s.result.save(outdir / s.name)
+                saved = s.save(outdir / s.name)
                 paths[f"fit:{s.name}"] = saved["summary"].parent
         return paths
 

@@ -51,6 +51,7 @@ import numpy as np
 
 from bayesbeam._util import finite_json
 from bayesbeam.inference.fit import fit, thin_result
+from bayesbeam.inference.predictive import PRIOR_DRAWS, predictive_group
 from bayesbeam.inference.problem import Problem
 from bayesbeam.inference.results import FitResult
 from bayesbeam.inference.settings import fit_settings
@@ -153,6 +154,37 @@ class ModelScore:
     result: FitResult
     loglik: np.ndarray
     notes: tuple[str, ...] = ()
+    draws: FitResult | None = None
+    y_rep: np.ndarray | None = None
+    observed: np.ndarray | None = None
+    times: np.ndarray | None = None
+
+    def save(self, folder: str | Path) -> dict[str, Path]:
+        """Write the model's complete ArviZ tree (``posterior.nc``) and ``summary.json``.
+
+        The tree holds the draws of :attr:`loglik` (:attr:`draws`) with the pointwise
+        log-likelihood, the posterior predictive, the observed data on its time axis
+        and prior draws, so that ``arviz.loo`` and ``arviz.compare`` work on the file;
+        ``summary.json`` summarises the full chain. A score read back without them
+        (:func:`bayesbeam.jobs.executor.load_score`) saves its posterior only.
+
+        Parameters
+        ----------
+        folder : str or pathlib.Path
+            Created if missing.
+
+        Returns
+        -------
+        dict
+            ``{"netcdf": path, "summary": path}``.
+        """
+        if self.draws is None or self.loglik.size == 0:
+            return self.result.save(folder)
+        return self.draws.save(
+            folder, summary_from=self.result, log_likelihood=self.loglik,
+            posterior_predictive=self.y_rep, observed=self.observed, obs_coords=self.times,
+            prior_samples=PRIOR_DRAWS,
+        )
 
     @property
     def log_evidence(self) -> float:
@@ -343,7 +375,8 @@ def evaluate(
         except EvidenceError as err:  # includes HessianNotNegativeDefiniteError
             notes.append(f"Laplace evidence not available: {err}")
         # Pointwise log-likelihood at thinned draws (walkers as chains for ArviZ).
-        thin = thin_result(result, n_loo_draws).chain.samples
+        draws = thin_result(result, n_loo_draws)
+        thin = draws.chain.samples
         n_s, n_w, d = thin.shape
         ll_flat = _pointwise(problem, thin.reshape(-1, d))
         loglik = np.swapaxes(ll_flat.reshape(n_s, n_w, -1), 0, 1)
@@ -388,5 +421,11 @@ def evaluate(
         result=result,
         loglik=loglik,
         notes=tuple(notes),
+        draws=draws,
+        # the posterior-predictive group of the saved tree (its own random stream)
+        y_rep=predictive_group(problem, thin,
+                               np.random.default_rng(np.random.SeedSequence([int(seed), 2]))),
+        observed=np.asarray(problem.data, dtype=float),
+        times=np.asarray(problem.trial.times, dtype=float),
     )
 

@@ -24,7 +24,19 @@ import numpy as np
 
 from bayesbeam.stats.likelihood import stationary_ar1
 
-__all__ = ["PredictiveError", "posterior_predictive", "predictive_draws"]
+__all__ = [
+    "PPC_DRAWS",
+    "PRIOR_DRAWS",
+    "PredictiveError",
+    "posterior_predictive",
+    "predictive_draws",
+    "predictive_group",
+]
+
+#: Draws of the ArviZ ``posterior_predictive`` group (:func:`predictive_group`).
+PPC_DRAWS = 200
+#: Prior draws of the ArviZ ``prior`` group of a saved posterior file.
+PRIOR_DRAWS = 1000
 
 #: How :func:`posterior_predictive` picks its draws from the flattened chain.
 _SELECTIONS = ("random", "spaced")
@@ -147,3 +159,34 @@ def posterior_predictive(
     else:
         idx = np.unique(np.linspace(0, flat.shape[0] - 1, n).astype(int))
     return predictive_draws(problem, flat[idx], rng)
+
+
+def predictive_group(problem: Any, samples: np.ndarray, rng: np.random.Generator, *,
+                     max_draws: int = PPC_DRAWS) -> np.ndarray:
+    """Replicated data for an ArviZ ``posterior_predictive`` group (walkers as chains).
+
+    A few evenly spaced steps of every walker, so that the group shares the posterior's
+    chains; used by every output that writes a posterior file (``bayesbeam fit``,
+    :meth:`bayesbeam.comparison.scoring.ModelScore.save`).
+
+    Parameters
+    ----------
+    problem : bayesbeam.inference.problem.Problem
+    samples : ndarray, shape (nsteps, nwalkers, ndim)
+        Sampling-space draws (e.g. a thinned chain's ``samples``).
+    rng : numpy.random.Generator
+        Source of the noise draws.
+    max_draws : int
+        Upper bound on steps × walkers (at least one step is drawn).
+
+    Returns
+    -------
+    ndarray, shape (nwalkers, steps, T)
+        ``y_rep`` in SI units of the trial's quantity.
+    """
+    samples = np.asarray(samples, dtype=float)
+    nsteps, nwalkers, ndim = samples.shape
+    steps = max(1, min(nsteps, max_draws // nwalkers))
+    pick = np.linspace(0, nsteps - 1, steps).round().astype(int)
+    _, _, y_rep = predictive_draws(problem, samples[pick].reshape(-1, ndim), rng)
+    return y_rep.reshape(steps, nwalkers, -1).swapaxes(0, 1)

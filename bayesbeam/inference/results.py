@@ -448,7 +448,8 @@ class FitResult:
 
     # -- files -----------------------------------------------------------------------
     def save(
-        self, outdir: str | Path, *, idata: Any = None, **idata_kwargs: Any
+        self, outdir: str | Path, *, idata: Any = None, summary_from: FitResult | None = None,
+        **idata_kwargs: Any,
     ) -> dict[str, Path]:
         """Write ``posterior.nc`` (ArviZ NetCDF) and ``summary.json`` into ``outdir``.
 
@@ -458,6 +459,10 @@ class FitResult:
             Output directory, created if missing; existing files are replaced.
         idata : xarray.DataTree, optional
             Tree to write; default ``self.to_inference_data(**idata_kwargs)``.
+        summary_from : FitResult, optional
+            The result whose summary ``summary.json`` holds (default this one): a
+            thinned result (the draws of the pointwise log-likelihood) saves its draws
+            and the full chain's summary.
         **idata_kwargs
             Passed to :meth:`to_inference_data`.
 
@@ -480,7 +485,8 @@ class FitResult:
         with atomic_path(nc) as tmp:
             tmp.write_bytes(buf.getvalue())
         js = outdir / "summary.json"
-        text = json.dumps(self.to_json_dict(), default=json_default, allow_nan=False, indent=2)
+        text = json.dumps((summary_from or self).to_json_dict(), default=json_default,
+                          allow_nan=False, indent=2)
         write_text_atomic(js, text + "\n")
         return {"netcdf": nc, "summary": js}
 

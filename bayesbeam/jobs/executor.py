@@ -33,7 +33,9 @@ Layout of one task's folder (``outdir/<trial name>/<model>/``):
 
 =========================  ===============================================================
 ``task.json``              the task: trial file, SHA-256s, model, seed, settings, key
-``posterior.nc``           the posterior (ArviZ NetCDF, :meth:`FitResult.save`)
+``posterior.nc``           complete ArviZ tree of the LOO draws: posterior, pointwise
+                           log-likelihood, posterior predictive, observed data, prior
+                           (:meth:`bayesbeam.comparison.scoring.ModelScore.save`)
 ``summary.json``           posterior summary, diagnostics, priors, settings, provenance
 ``score.json``             evidence ± error, Laplace, ELPD-LOO, WAIC, AIC, BIC, notes
 ``score.npz``              pointwise LOO/WAIC terms and Pareto k (to rebuild the ranking)
@@ -331,9 +333,10 @@ def load_score(folder: str | Path) -> Any:
     Returns
     -------
     bayesbeam.comparison.scoring.ModelScore
-        Its ``loglik`` is an empty array of shape (0, 0, T): the pointwise
-        log-likelihood of the draws is not stored (tens of MB per fit); LOO and WAIC
-        keep their pointwise terms, which is what the ranking needs.
+        Its ``result`` holds the draws of ``posterior.nc`` (the LOO draws, thinned
+        from the chain that ``summary.json`` summarises) and its ``loglik`` is an empty
+        array of shape (0, 0, T) (the file holds the pointwise terms for ArviZ); LOO and
+        WAIC keep their pointwise terms, which is what the ranking needs.
     """
     import numpy as np
 

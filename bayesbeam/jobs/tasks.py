@@ -272,7 +272,7 @@ def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any
     kw = {k: s[k] for k in _EVALUATE_KEYS}
     score = evaluate(trial, task.model, seed=task.seed, problem=problem, progress=False, **kw)
     res = score.result
-    res.save(folder)
+    score.save(folder)  # the complete ArviZ tree (arviz.loo / arviz.compare read it)
     record = score.to_dict()
     record.update({
         "trial": task.trial_name,

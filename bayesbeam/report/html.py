@@ -44,8 +44,8 @@ __all__ = ["REPORT_NAME", "ReportError", "build_report", "markdown_to_html", "wr
 #: File name of the report inside the output folder.
 REPORT_NAME = "report.html"
 #: Figures in this order first (by file name), the rest alphabetically.
-_FIGURE_ORDER = ("fits.png", "fit.png", "residual_spectrum.png", "comparison.png",
-                 "corner.png", "trace.png")
+_FIGURE_ORDER = ("fits.png", "fit.png", "zeta_vs_f.png", "residual_spectrum.png",
+                 "comparison.png", "corner.png", "trace.png")
 #: Skip images larger than this (bytes); the page says so instead.
 MAX_IMAGE_BYTES = 8_000_000
 

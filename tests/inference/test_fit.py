@@ -222,8 +222,17 @@ def test_cli_fit_writes_results_and_json(tmp_path, capsys):
     assert payload["converged"] is False
     assert "NOT CONVERGED" in cap.err
     for f in ("posterior.nc", "summary.json", "corner.png", "trace.png", "fit.png",
-              "residual_spectrum.png", "chain.h5"):
+              "residual_spectrum.png", "zeta_vs_f.png", "chain.h5"):
         assert (out / f).is_file() and (out / f).stat().st_size > 0, f
+    # The modal posterior (bayesbeam.inference.modal): f_k and ζ_k of the modes below the
+    # sensor band (256 Hz / 2.56 = 100 Hz: modes 1 and 2 of this beam), in both records.
+    modes = payload["modes"]
+    assert modes["available"] is True and modes["n_modes"] == 2
+    assert modes["n_draws"] + modes["n_invalid"] + modes["n_overdamped"] == modes["n_requested"]
+    assert [m["mode"] for m in modes["modes"]] == [1, 2]
+    z1 = modes["modes"][0]["damping_ratio"]
+    assert z1["q05"] <= z1["q50"] <= z1["q95"] and 0.002 < z1["q50"] < 0.05  # truth 0.01
+    assert json.loads((out / "summary.json").read_text())["modes"] == modes
     import arviz
 
     from bayesbeam.inference.results import FitResult
