@@ -2,14 +2,18 @@
 
 Writes into ``OUTDIR``: ``comparison.json`` (strict JSON), ``comparison.txt`` (the
 table), ``comparison.html``, ``comparison.png`` (log evidence with error bars and
-ELPD differences) and each model's fit in ``OUTDIR/<model>/`` (``posterior.nc``,
-``summary.json``, the sampler checkpoint ``chain.h5``). Prints the table, or the
-JSON record with ``--json``. See :mod:`bayesbeam.comparison.compare` for the rules.
+ELPD differences), ``zeta_vs_f.png`` (each model's modal damping ratio against
+frequency, 90 % intervals, the record's own estimates overlaid; ``modes`` in the JSON)
+and each model's fit in ``OUTDIR/<model>/`` (``posterior.nc``: the complete ArviZ tree,
+``summary.json``, the sampler checkpoint ``chain.h5``). Prints the table, or the JSON
+record of ``comparison.json`` with ``--json``. See :mod:`bayesbeam.comparison.compare`
+for the rules.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
@@ -168,9 +172,9 @@ def run(args: argparse.Namespace) -> int:
         **opts.fit_settings(args),
     )
     extra = {"preprocessing": pre.to_json_dict(), **stamp(args, trial)}
-    result.save(outdir, extra=extra)
-    if args.json:  # the same record as comparison.json
-        opts.print_json({**result.to_json_dict(), **extra})
+    paths = result.save(outdir, extra=extra, trial=trial)  # modal posteriors need the trial
+    if args.json:  # the record of comparison.json, as written
+        opts.print_json(json.loads(paths["json"].read_text(encoding="utf-8")))
     else:
         print(result)
         print(f"\nwrote {outdir}/comparison.{{json,txt,html,png}} and one folder per model")

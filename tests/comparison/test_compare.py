@@ -356,6 +356,8 @@ def test_cli_compare_end_to_end(tmp_path, capsys):
             # slightly differently (0.01 nat here): agreement to 0.1 nat, well inside se
             assert arviz.loo(trees[m["name"]]).elpd == pytest.approx(m["elpd_loo"], abs=0.1)
     assert table.index[0] == d["best"]
+    assert (out / "zeta_vs_f.png").is_file()
+    assert set(d["modes"]) == {"viscous", "viscous+kv"}
 
 
 # --------------------------------------------------------------------------- slow checks
