@@ -25,6 +25,7 @@ the summary to ``summary.json``; :meth:`FitResult.load` reads ``posterior.nc`` b
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import datetime as _dt
 import io
@@ -86,6 +87,21 @@ def make_provenance(extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     }
     out.update(dict(extra or {}))
     return out
+
+
+def _local_scheduler() -> Any:
+    """Context in which xarray writes with a thread lock, not dask's scheduler's lock.
+
+    Inside a dask.distributed worker xarray locks a write with a ``distributed.Lock``
+    named by the target, which must be a path: writing into an in-memory buffer there
+    fails ("Semaphore or Lock ... not known"). The buffer is this process's own, so a
+    thread lock (dask's synchronous scheduler) is all it needs. Without dask: nothing.
+    """
+    try:
+        import dask
+    except ImportError:  # dask is an optional extra: no scheduler to step around
+        return contextlib.nullcontext()
+    return dask.config.set(scheduler="synchronous")
 
 
 def _frozen_mapping(m: Mapping[str, Any] | None) -> Mapping[str, Any]:
@@ -481,7 +497,8 @@ class FitResult:
         # then an ordinary OSError, never a half-written HDF5 file that the HDF5 library
         # tries to close again at exit (that ended in a segmentation fault).
         buf = io.BytesIO()
-        idata.to_netcdf(buf, engine="h5netcdf")
+        with _local_scheduler():
+            idata.to_netcdf(buf, engine="h5netcdf")
         with atomic_path(nc) as tmp:
             tmp.write_bytes(buf.getvalue())
         js = outdir / "summary.json"

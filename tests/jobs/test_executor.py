@@ -154,8 +154,10 @@ def test_dask_cluster_identical_to_serial(serial_run, tmp_path):
     # time (see bayesbeam.jobs.executor.run_fit_task), which this also exercises.
     distributed = pytest.importorskip("dask.distributed")
     tasks, _, first = serial_run
+    # ":0": a free port for the HTTP server (two clusters of parallel test workers would
+    # both ask for 8787; the warning fails the strict suite)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         outcomes = run_fits(tasks, tmp_path, scheduler=cluster.scheduler_address,
                             progress=False)
     assert _numbers(outcomes) == _numbers(first)
@@ -166,7 +168,7 @@ def test_dask_worker_processes_identical_to_serial(serial_run, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     tasks, _, first = serial_run
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, \
+                                  dashboard_address=":0") as cluster, \
             distributed.Client(cluster) as client:
         # A connected Client is accepted as the scheduler too.
         outcomes = run_fits(tasks, tmp_path, scheduler=client, progress=False)
