@@ -710,40 +710,40 @@ def run_emcee(
 
     check: Check | None = None
     prev_tau: np.ndarray | None = None
-    stop = _DeferredInterrupt()
-    try:
-        stop.__enter__()
-        if it > 0:
-            # Rebuild the decision history: τ at the last regular check before `it`,
-            # and a check at `it` itself if the interrupted run was due one there.
-            last = ((it - 1) // check_every) * check_every
-            prev_tau = autocorr_time(backend.get_chain()[:last], n_tau)[0] if last else None
-            if it % check_every == 0 or it >= max_steps:
+    # The handler stays in place while the last steps are saved: a Ctrl-C then does
+    # not cut the write short.
+    with _DeferredInterrupt() as stop:
+        try:
+            if it > 0:
+                # Rebuild the decision history: τ at the last regular check before `it`,
+                # and a check at `it` itself if the interrupted run was due one there.
+                last = ((it - 1) // check_every) * check_every
+                prev_tau = autocorr_time(backend.get_chain()[:last], n_tau)[0] if last else None
+                if it % check_every == 0 or it >= max_steps:
+                    check = evaluate(it, prev_tau)
+                    prev_tau = check.tau
+                    bar.set_info(check)
+            while not (check is not None and check.converged) and it < max_steps:
+                target = min((it // check_every + 1) * check_every, max_steps)
+                steps = sampler.sample(state, iterations=target - it, progress=False)
+                for new_state in steps:
+                    state = new_state
+                    it += 1
+                    bar.update(it)
+                    if stop.requested:
+                        break
+                if stop.requested:  # the steps so far are saved by `finally`
+                    raise KeyboardInterrupt(f"sampling interrupted after step {it}")
                 check = evaluate(it, prev_tau)
                 prev_tau = check.tau
                 bar.set_info(check)
-        while not (check is not None and check.converged) and it < max_steps:
-            target = min((it // check_every + 1) * check_every, max_steps)
-            steps = sampler.sample(state, iterations=target - it, progress=False)
-            for new_state in steps:
-                state = new_state
-                it += 1
-                bar.update(it)
-                if stop.requested:
-                    break
-            if stop.requested:  # the steps so far are saved by `finally`
+                bar.update(it, force=bar.tty)
+                save_meta()
+            if stop.requested:  # Ctrl-C during the last check: still an interruption
                 raise KeyboardInterrupt(f"sampling interrupted after step {it}")
-            check = evaluate(it, prev_tau)
-            prev_tau = check.tau
-            bar.set_info(check)
-            bar.update(it, force=bar.tty)
-            save_meta()
-        if stop.requested:  # Ctrl-C during the last check: still an interruption
-            raise KeyboardInterrupt(f"sampling interrupted after step {it}")
-    finally:
-        stop.__exit__()
-        save_meta(final=True)
-        bar.close()
+        finally:
+            save_meta(final=True)
+            bar.close()
 
     if check is None:  # unreachable: the loop runs at least once when it < max_steps
         raise RuntimeError("internal error: no convergence check was made")

@@ -10,7 +10,6 @@ input runs for real. Examples are derandomised, so a failure reproduces.
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import tempfile
 import tomllib
@@ -23,6 +22,7 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from bayesbeam.cli.main import main  # noqa: E402
+from bayesbeam.trials.io import _toml_dumps  # noqa: E402 - the package's own TOML writer
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 BASE = tomllib.loads((DATA / "beam1-trial1.toml").read_text(encoding="utf-8"))
@@ -46,42 +46,6 @@ def no_sampling(monkeypatch):
         raise Reached
 
     monkeypatch.setattr(fit_module, "fit", stop)
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float):
-        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) \
-            else repr(v)
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, str):
-        return json.dumps(v)  # JSON's escapes are valid in a TOML basic string
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(v)
-
-
-def _toml(doc: dict) -> str:
-    """Write a trial document (top-level values, tables, arrays of tables) as TOML."""
-    def is_tables(v):
-        return isinstance(v, list) and bool(v) and isinstance(v[0], dict)
-
-    lines = [f"{json.dumps(k)} = {_toml_value(v)}" for k, v in doc.items()
-             if not isinstance(v, dict)]
-    for name, table in doc.items():
-        if not isinstance(table, dict):
-            continue
-        lines.append(f"[{name}]")
-        lines += [f"{json.dumps(k)} = {_toml_value(v)}" for k, v in table.items()
-                  if not is_tables(v)]
-        for k, v in table.items():
-            if is_tables(v):
-                for item in v:
-                    lines.append(f"[[{name}.{k}]]")
-                    lines += [f"{json.dumps(a)} = {_toml_value(b)}" for a, b in item.items()]
-    return "\n".join(lines) + "\n"
 
 
 values = st.one_of(
@@ -123,7 +87,7 @@ def trial_files(draw):
     header = draw(st.sampled_from([ROWS[0], ROWS[0], "t,y", ""]))
     csv = "\n".join([header, *rows]) + "\n"
     raw = csv.encode() if draw(st.integers(0, 9)) else b"\xff\xfe" + csv.encode()
-    return _toml(doc), raw
+    return _toml_dumps(doc), raw
 
 
 def _check_outcome(argv, capsys):
