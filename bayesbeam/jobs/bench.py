@@ -11,12 +11,21 @@ at dt = 0.003906 s, model ``viscous+sh`` with b = 0.01 m and damping ratios of a
       4 elements to keep it to seconds.
 
 Timings are medians over repeats; ratios are against (ii) and (iii) run in the same process.
+
+(iv)  the forward model's paths (issue 13): for ``viscous``, ``viscous+kv`` and
+      ``viscous+sh`` at 1,280 and 10,240 samples, the time per set of the path the forward
+      model chooses (closed-form modal sum for the classically damped models, full
+      propagation otherwise), the ratio of today's full propagation (``path='full'``, same
+      sets, same process) to it, and its ratio to a bare numpy loop doing only the
+      ``m × T`` complex rotations of the modes in band (the practical limit of any
+      per-sample method).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -31,6 +40,9 @@ __all__ = ["bench_beam", "bench_params", "format_bench", "run_bench"]
 N_SETS = 64
 N_SAMPLES = 1280
 DT = 0.003906
+#: Models and record lengths of the path table (iv).
+PATH_MODELS = ("viscous", "viscous+kv", "viscous+sh")
+PATH_SAMPLES = (1280, 10240)
 
 
 def bench_beam() -> Beam:
@@ -64,6 +76,71 @@ def bench_params(fwd: Forward, n_sets: int, rng: np.random.Generator) -> np.ndar
     a = 4 * E * beam.I * zeta_sh / (w1 * b**2)
     w0 = np.full(n_sets, 5e-3)
     return np.column_stack([E, gamma, a, b, w0])
+
+
+def _path_params(fwd: Forward, n_sets: int, rng: np.random.Generator) -> np.ndarray:
+    """Return parameter sets for any of :data:`PATH_MODELS`, columns ``fwd.param_names``.
+
+    Those of :func:`bench_params` plus a Kelvin–Voigt ``c_d`` giving ζ1 of 0.5–1.5 %
+    (physics.md §2: ζ = c_d ω / (2E)).
+    """
+    E, gamma, a, b, w0 = bench_params(fwd, n_sets, rng).T
+    beam = fwd.beam
+    w1 = 1.875104069**2 * np.sqrt(E * beam.I / (beam.rhoA * beam.length**4))
+    c_d = 2 * E * rng.uniform(0.005, 0.015, n_sets) / w1
+    cols = {"E": E, "gamma": gamma, "c_d": c_d, "a": a, "b": b, "w0": w0}
+    return np.column_stack([cols[name] for name in fwd.param_names])
+
+
+def _bare_rotations(rot: np.ndarray, n: int) -> np.ndarray:
+    """Rotate every mode ``n`` times, ``z ← z·r``, and nothing else (the practical limit).
+
+    ``rot`` (B, m) holds each mode's one-step factor; a numpy loop over the samples,
+    vectorised over sets and modes.
+    """
+    z = np.ones_like(rot)
+    for _ in range(n):
+        np.multiply(z, rot, out=z)
+    return z
+
+
+def _modes_in_band(fwd: Forward, theta: np.ndarray) -> np.ndarray:
+    """One-step rotations ``e^{iω dt}`` (B, m') of the undamped modes inside the band."""
+    omega, _, _ = fwd.modal_system(theta)
+    if fwd.bandwidth is not None:
+        keep = omega <= 2 * np.pi * fwd.bandwidth
+        omega = omega[:, : max(1, int(keep.sum(axis=1).max()))]
+    return np.exp(1j * omega * fwd.dt)
+
+
+def _path_table(
+    n_elements: int, repeats: int, seed: int, n_sets: int, samples: tuple[int, ...]
+) -> list[dict[str, float | int | str]]:
+    """Rows of the path table (iv); see the module docstring."""
+    rows: list[dict[str, float | int | str]] = []
+    for n in samples:
+        times = np.arange(n) * DT
+        for model in PATH_MODELS:
+            auto = Forward(bench_beam(), model, times, n_elements=n_elements)
+            full = Forward(bench_beam(), model, times, n_elements=n_elements, path="full")
+            theta = _path_params(auto, n_sets, np.random.default_rng(seed))
+            y_auto = auto.simulate(theta)  # also the warm-up
+            y_full = full.simulate(theta)
+            if not (y_auto.valid.all() and y_full.valid.all()):
+                raise RuntimeError(f"benchmark sets of {model!r} were rejected")
+            per_set = _median_time(lambda f=auto, th=theta: f.simulate(th), repeats) / n_sets
+            full_s = _median_time(lambda f=full, th=theta: f.simulate(th), repeats) / n_sets
+            rot = _modes_in_band(auto, theta)
+            bare = _median_time(lambda r=rot, k=n: _bare_rotations(r, k), repeats) / n_sets
+            diff = np.max(np.abs(y_auto.y - y_full.y)) / np.max(np.abs(y_full.y))
+            rows.append({
+                "model": model, "n_samples": n, "path": str(auto.last_path),
+                "per_set_s": per_set, "full_per_set_s": full_s,
+                "speedup_vs_full": full_s / per_set, "bare_per_set_s": bare,
+                "ratio_to_bare": per_set / bare, "modes_in_band": int(rot.shape[1]),
+                "max_rel_diff_vs_full": float(diff),
+            })
+    return rows
 
 
 def _median_time(fn: Callable[[], object], repeats: int) -> float:
@@ -127,7 +204,8 @@ def run_bench(
     seed: int = 0,
     n_sets: int = N_SETS,
     n_samples: int = N_SAMPLES,
-) -> dict[str, float]:
+    path_samples: tuple[int, ...] = PATH_SAMPLES,
+) -> dict[str, Any]:
     """Run the benchmark and return its figures.
 
     Parameters
@@ -144,6 +222,8 @@ def run_bench(
         Parameter sets in the batch (64 in the issue; fewer for a quick smoke test).
     n_samples : int
         Samples per response at dt = 0.003906 s (1280 in the issue).
+    path_samples : tuple of int
+        Record lengths of the path table (1,280 and 10,240 in issue 13); empty: no table.
 
     Returns
     -------
@@ -152,13 +232,20 @@ def run_bench(
         ``expm_per_set_s``, ``rk45_per_set_s``, ``rk45_elements``, ``max_rel_diff``
         (forward model vs expm stepping, max over up to 16 sets of max|Δy| / max|y|),
         ``speedup_vs_expm``, ``speedup_vs_rk45``, ``n_sets``, ``n_samples``,
-        ``n_elements``.
+        ``n_elements``, and ``paths``: one dict per (samples, model) of the path table
+        with ``model``, ``n_samples``, ``path`` (the path the forward model took),
+        ``per_set_s``, ``full_per_set_s``, ``speedup_vs_full`` (full / chosen),
+        ``bare_per_set_s``, ``ratio_to_bare`` (chosen / bare rotations),
+        ``modes_in_band`` and ``max_rel_diff_vs_full``.
     """
     for label, v in (("n_sets", n_sets), ("n_samples", n_samples), ("repeats", repeats)):
         if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
             raise ValueError(f"{label} must be a positive integer, got {v!r}")
     if n_samples < 2:
         raise ValueError(f"n_samples must be at least 2, got {n_samples}")
+    for n in path_samples:
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
+            raise ValueError(f"path_samples must be integers >= 2, got {n!r}")
     rng = np.random.default_rng(seed)
     times = np.arange(n_samples) * DT
     fwd = Forward(bench_beam(), "viscous+sh", times, n_elements=n_elements)
@@ -191,10 +278,11 @@ def run_bench(
         "n_sets": n_sets,
         "n_samples": n_samples,
         "n_elements": n_elements,
+        "paths": _path_table(n_elements, repeats, seed, n_sets, tuple(path_samples)),
     }
 
 
-def format_bench(res: dict[str, float]) -> str:
+def format_bench(res: dict[str, Any]) -> str:
     """Human-readable benchmark table.
 
     Parameters
@@ -206,17 +294,32 @@ def format_bench(res: dict[str, float]) -> str:
     -------
     str
     """
-    return "\n".join(
-        [
-            f"forward-model benchmark: viscous+sh, {res['n_elements']} elements, "
-            f"{res.get('n_samples', N_SAMPLES)} samples, {res['n_sets']} parameter sets "
-            "(medians)",
-            f"  batched forward model : {res['per_set_s'] * 1e6:10.1f} µs per set",
-            f"  expm stepping (scipy) : {res['expm_per_set_s'] * 1e6:10.1f} µs per set"
-            f"   ratio {res['speedup_vs_expm']:.1f}x",
-            f"  solve_ivp RK45 ({res['rk45_elements']} el.) : "
-            f"{res['rk45_per_set_s']:10.3f} s per set"
-            f"   ratio {res['speedup_vs_rk45']:.0f}x",
-            f"  max relative difference forward vs expm stepping: {res['max_rel_diff']:.2e}",
+    lines = [
+        f"forward-model benchmark: viscous+sh, {res['n_elements']} elements, "
+        f"{res.get('n_samples', N_SAMPLES)} samples, {res['n_sets']} parameter sets "
+        "(medians)",
+        f"  batched forward model : {res['per_set_s'] * 1e6:10.1f} µs per set",
+        f"  expm stepping (scipy) : {res['expm_per_set_s'] * 1e6:10.1f} µs per set"
+        f"   ratio {res['speedup_vs_expm']:.1f}x",
+        f"  solve_ivp RK45 ({res['rk45_elements']} el.) : "
+        f"{res['rk45_per_set_s']:10.3f} s per set"
+        f"   ratio {res['speedup_vs_rk45']:.0f}x",
+        f"  max relative difference forward vs expm stepping: {res['max_rel_diff']:.2e}",
+    ]
+    paths = res.get("paths") or []
+    if paths:
+        lines += [
+            "",
+            f"forward-model paths ({res['n_sets']} sets; medians; full = today's full "
+            "propagation, bare = numpy loop of only the m x T rotations)",
+            f"  {'model':<11} {'samples':>7} {'path':<16} {'µs/set':>9} {'full µs/set':>11} "
+            f"{'full/path':>9} {'path/bare':>9} {'m':>3} {'max rel diff':>12}",
         ]
-    )
+        for row in paths:
+            lines.append(
+                f"  {row['model']:<11} {row['n_samples']:>7} {row['path']:<16} "
+                f"{row['per_set_s'] * 1e6:9.1f} {row['full_per_set_s'] * 1e6:11.1f} "
+                f"{row['speedup_vs_full']:9.1f} {row['ratio_to_bare']:9.2f} "
+                f"{row['modes_in_band']:>3} {row['max_rel_diff_vs_full']:12.2e}"
+            )
+    return "\n".join(lines)

@@ -19,6 +19,15 @@ are those of its own 2x2 block, so ``P`` zeroes the modal coordinates of the mod
 the band and they are dropped from the propagation altogether; other sets (spatial
 hysteresis, non-proportional damping) use the eigenvectors of the state matrix. Without
 ``bandwidth`` no mode is dropped (a sensor of unlimited band).
+
+Closed-form path. When every set of a batch is classically damped with shared mode shapes
+(viscous and/or Kelvin–Voigt damping whose modal images are exactly diagonal, no spatial
+hysteresis, no structural parameter or root spring: E only scales the frequencies), each
+mode is an independent damped oscillator and :meth:`Forward.simulate` sums the modes in
+closed form (:mod:`bayesbeam.physics.modal_closed`) instead of propagating the state: the
+same response to rounding (checked to 1e-9 relative in the tests), at any stamps. The
+choice is made in one place, :meth:`Forward._path_for`; ``path='full'`` forces the
+propagation, and :attr:`Forward.last_path` says which path the last call took.
 """
 
 from __future__ import annotations
@@ -33,6 +42,7 @@ from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.expm import expm_batched
 from bayesbeam.physics.fem import FEModel, assemble, static_tip_shape
 from bayesbeam.physics.hysteresis import HysteresisOperator
+from bayesbeam.physics.modal_closed import closed_form_response
 from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.physics.sensor import band_limit, check_bandwidth
 
@@ -118,6 +128,11 @@ def _modal_image(X: np.ndarray, R: np.ndarray, r_diag: np.ndarray, phi: np.ndarr
     if np.max(np.abs(X - c * R)) <= 1e-13 * np.max(np.abs(X)):
         return np.diag(c * r_diag)
     return phi.T @ X @ phi
+
+
+def _is_diagonal(X: np.ndarray) -> bool:
+    """Whether the square matrix ``X`` has exactly zero off-diagonal entries."""
+    return not np.any(X - np.diag(np.diagonal(X)))
 
 
 def initial_names(initial: str) -> tuple[str, ...]:
@@ -245,6 +260,22 @@ class Forward:
     bandwidth : float, optional
         Sensor bandwidth in Hz (see the module docstring): eigen-solutions with
         ``|λ| > 2π·bandwidth`` are removed from the output. None or inf: all modes.
+    path : {'auto', 'full'}, optional
+        'auto' (default): classically damped models with a fixed structure take the
+        closed-form modal sum (see the module docstring), all others the full
+        propagation; 'full': always the full propagation (a reference for tests and the
+        benchmark). Can be changed later through the attribute of the same name.
+
+    Attributes
+    ----------
+    classical : bool
+        Whether this model is classically damped with shared mode shapes (the closed-form
+        path applies to every admissible set).
+    last_path : str or None
+        Path of the last :meth:`simulate` call: 'closed-form', 'full', or
+        'closed-form+full' when some sets were propagated in full (a near-critical mode
+        split by the band edge, or a set the closed form could not evaluate); None before
+        the first call.
     """
 
     def __init__(
@@ -258,7 +289,12 @@ class Forward:
         initial_state: tuple[np.ndarray, np.ndarray] | None = None,
         t0: float | None = None,
         bandwidth: float | None = None,
+        path: str = "auto",
     ) -> None:
+        if path not in ("auto", "full"):
+            raise ForwardError(f"path must be 'auto' or 'full', got {path!r}")
+        self.path = path
+        self.last_path: str | None = None
         if not isinstance(beam, Beam):
             raise ForwardError("beam must be a bayesbeam.Beam")
         self.beam = beam
@@ -326,6 +362,20 @@ class Forward:
             # a batch only scales them: q0 = Φᵀ M c0 and q0' = Φᵀ M M⁻¹ tip p0 = Φᵀ tip p0.
             self._q_release = phi.T @ (self.fe.M @ self._release)
             self._q_impulse = phi.T @ self.fe.tip
+        # Classical damping with shared shapes: _modal_image returned exactly diagonal
+        # images for the laws present (G ∝ M, KV ∝ K to 1e-13), and no law or structure
+        # couples the modes.
+        laws = set(self.model.laws)
+        self.classical = bool(
+            self._fixed
+            and laws <= {"viscous", "kv"}
+            and ("viscous" not in laws or _is_diagonal(self._G))
+            and ("kv" not in laws or _is_diagonal(self._KV))
+        )
+        if self.classical:
+            self._c_unit = {"gamma": np.diagonal(self._G).copy(),
+                            "c_d": np.diagonal(self._KV).copy()}
+            self._s_modal = self.sensor @ self._phi
 
     # -- helpers --------------------------------------------------------------------
     def _columns(self, theta: np.ndarray | dict) -> np.ndarray:
@@ -599,37 +649,84 @@ class Forward:
         """
         theta = self._columns(theta)
         B = theta.shape[0]
-        y = np.zeros((B, self._t.size))
         valid = self.check(theta)
         if not np.any(valid):
-            return Response(y, valid)
+            return Response(np.zeros((B, self._t.size)), valid)
         th = theta[valid]
-        # Admissible but extreme sets can still overflow (e.g. E = 1e300): the propagator
-        # reports them through its mask (return_valid=True); they are flagged here and
-        # never raise for the whole batch (emcee evaluates whole ensembles at once).
+        # Admissible but extreme sets can still overflow (e.g. E = 1e300): both paths
+        # report them in a mask; they are flagged here and never raise for the whole
+        # batch (emcee evaluates whole ensembles at once).
         with np.errstate(all="ignore"):
-            A, z0, h = self._state_space(th, check=False)
-            if self._lead > 0:
-                # The state at the first sample: exact propagation over the lead time.
-                z0 = self._lead_state(A, z0)
-            if self.uniform:
-                yy, ok = propagate.response_uniform(
-                    A, z0, h, self._dt, self._t.size, return_valid=True
-                )
-            elif self._grid is not None:  # a uniform grid with holes: simulate it whole
-                step, index = self._grid
-                yy, ok = propagate.response_uniform(
-                    A, z0, h, step, int(index[-1]) + 1, return_valid=True
-                )
-                yy = yy[:, index]
+            if self._path_for() == "closed-form":
+                yy, ok = self._closed_form(th)
+                rest = np.flatnonzero(~ok)
+                self.last_path = "closed-form"
+                if rest.size:  # propagate those sets in full (they may still be invalid)
+                    yy[rest], ok[rest] = self._full(th[rest])
+                    self.last_path = "closed-form+full"
             else:
-                yy, ok = propagate.response_times(A, z0, h, self._t, return_valid=True)
-        ok &= np.all(np.isfinite(yy), axis=1)
+                yy, ok = self._full(th)
+                self.last_path = "full"
+        # Both paths flag non-finite rows in `ok` themselves (return_valid of the
+        # propagator, closed_form_response): no second scan of the output here.
+        if ok.all() and valid.all():  # the common case: no row to scatter
+            return Response(np.ascontiguousarray(yy), valid)
         yy[~ok] = 0.0
+        y = np.zeros((B, self._t.size))
         idx = np.flatnonzero(valid)
         valid[idx[~ok]] = False
         y[idx[ok]] = yy[ok]
         return Response(y, valid)
+
+    def _path_for(self) -> str:
+        """Return the path :meth:`simulate` takes, 'closed-form' or 'full' (the one choice)."""
+        return "closed-form" if self.classical and self.path == "auto" else "full"
+
+    def _full(self, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Full propagation of admissible sets → (y (B, T), ok (B,))."""
+        A, z0, h = self._state_space(th, check=False)
+        if self._lead > 0:
+            # The state at the first sample: exact propagation over the lead time.
+            z0 = self._lead_state(A, z0)
+        if self.uniform:
+            return propagate.response_uniform(
+                A, z0, h, self._dt, self._t.size, return_valid=True
+            )
+        if self._grid is not None:  # a uniform grid with holes: simulate it whole
+            step, index = self._grid
+            yy, ok = propagate.response_uniform(
+                A, z0, h, step, int(index[-1]) + 1, return_valid=True
+            )
+            return yy[:, index], ok
+        return propagate.response_times(A, z0, h, self._t, return_valid=True)
+
+    def _closed_form(self, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closed-form modal sum of admissible classically damped sets → (y, ok).
+
+        ``ok`` is False for sets to propagate in full instead (see
+        :func:`bayesbeam.physics.modal_closed.closed_form_response`).
+        """
+        omega = np.sqrt(self._get(th, "E"))[:, None] * self._w_unit[None, :]
+        c = np.zeros_like(omega)
+        for law, name in (("viscous", "gamma"), ("kv", "c_d")):
+            if law in self.model.laws:
+                c += self._get(th, name)[:, None] * self._c_unit[name][None, :]
+        z0 = self._initial_state(th, omega, self._phi)
+        m = omega.shape[1]
+        q0, v0 = z0[:, :m] / omega, z0[:, m:]
+        w_band = None if self.bandwidth is None else 2 * np.pi * self.bandwidth
+        args = (omega, c, q0, v0, self._s_modal, self.quantity)
+        # Stamps from t0 (the instant of the initial condition): lead + the same grids as
+        # the full path (uniform step = mean step; a grid with holes simulated whole).
+        if self.uniform:
+            return closed_form_response(
+                *args, uniform=(self._lead, self._dt, self._t.size), w_band=w_band)
+        if self._grid is not None:
+            step, index = self._grid
+            yy, ok = closed_form_response(
+                *args, uniform=(self._lead, step, int(index[-1]) + 1), w_band=w_band)
+            return yy[:, index], ok
+        return closed_form_response(*args, times=self._lead + self._t, w_band=w_band)
 
     def modes(
         self, theta: np.ndarray | dict, *, return_overdamped: bool = False

@@ -43,3 +43,32 @@ def test_bench_parameters_give_a_few_percent_damping():
 def test_run_bench_rejects_bad_sizes(kwargs):
     with pytest.raises(ValueError, match="must be"):
         run_bench(**kwargs)
+
+
+def test_path_table_reports_each_model_and_the_path_taken():
+    # Issue 13: the path table (closed form for the classically damped models, full
+    # propagation for spatial hysteresis), on a small problem (same code as the real run).
+    res = run_bench(n_sets=3, n_samples=64, repeats=1, rk45_elements=2, n_elements=6,
+                    path_samples=(64, 96))
+    rows = res["paths"]
+    assert [(r["model"], r["n_samples"]) for r in rows] == [
+        (m, n) for n in (64, 96) for m in ("viscous", "viscous+kv", "viscous+sh")]
+    for row in rows:
+        expected = "full" if row["model"] == "viscous+sh" else "closed-form"
+        assert row["path"] == expected
+        for key in ("per_set_s", "full_per_set_s", "bare_per_set_s"):
+            assert math.isfinite(row[key]) and row[key] > 0
+        assert row["modes_in_band"] == 12  # 6 elements, 2 dofs per node, clamped root
+        # The closed form and the full propagation are both exact to rounding (issue 13:
+        # 1e-9 relative; tests/physics/test_forward_classical.py).
+        assert row["max_rel_diff_vs_full"] <= 1e-9
+    text = format_bench(res)
+    assert "closed-form" in text and "viscous+kv" in text and "path/bare" in text
+
+
+def test_path_table_can_be_left_out_and_rejects_bad_lengths():
+    res = run_bench(n_sets=2, n_samples=32, repeats=1, rk45_elements=2, n_elements=4,
+                    path_samples=())
+    assert res["paths"] == [] and "paths (" not in format_bench(res)
+    with pytest.raises(ValueError, match="path_samples"):
+        run_bench(path_samples=(1,))
