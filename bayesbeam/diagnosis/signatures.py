@@ -203,6 +203,11 @@ class Signatures:
     coverage50, coverage90 : float
         Fractions of data inside the central 50 % / 90 % predictive intervals.
     notes : tuple of str
+    amplitude_trends : dict
+        f1 and ζ1 slopes against the mode-1 amplitude, ``{"data": ..., "model": ...}``.
+    state_change : dict or None
+        The record's change-of-state test (data only, whatever the model:
+        :meth:`bayesbeam.trials.state_change.StateChange.to_json_dict`).
     """
 
     model: str
@@ -244,6 +249,7 @@ class Signatures:
     coverage90: float
     notes: tuple[str, ...] = field(default_factory=tuple)
     amplitude_trends: dict[str, Any] = field(default_factory=dict)
+    state_change: dict[str, Any] | None = None
 
     @property
     def white(self) -> bool:
@@ -295,6 +301,7 @@ class Signatures:
                 side: {k: (v if isinstance(v, int) else finite_or_none(v))
                        for k, v in tr.items()}
                 for side, tr in self.amplitude_trends.items()},
+            "state_change": self.state_change,
             "notes": list(self.notes),
         }
 
@@ -409,7 +416,7 @@ def compute_signatures(
         else:
             ddiff = dd.excess - dm.excess
             ddiff_err = math.hypot(dd.excess_se, dm.excess_se)
-    trends = _amplitude_trends(trial, t, data, pred, f1_ref, notes)
+    trends, change = _amplitude_trends(trial, t, data, pred, f1_ref, notes)
     lo, hi = np.quantile(y_rep, [0.05, 0.95], axis=0)
     q25, q75 = np.quantile(y_rep, [0.25, 0.75], axis=0)
     return Signatures(
@@ -452,11 +459,13 @@ def compute_signatures(
         coverage90=float(np.mean((data >= lo) & (data <= hi))),
         notes=tuple(notes),
         amplitude_trends=trends,
+        state_change=change,
     )
 
 
 def _amplitude_trends(trial: Any, t: np.ndarray, data: np.ndarray, pred: np.ndarray,
-                      f1: float, notes: list[str]) -> dict[str, dict[str, float]]:
+                      f1: float, notes: list[str]
+                      ) -> tuple[dict[str, dict[str, float]], dict[str, Any] | None]:
     """f1 and ζ1 against the mode-1 tip amplitude, for the data and the model's prediction.
 
     Sliding windows of four mode-1 periods (:func:`bayesbeam.trials.amplitude.
@@ -464,15 +473,20 @@ def _amplitude_trends(trial: Any, t: np.ndarray, data: np.ndarray, pred: np.ndar
     (:func:`~bayesbeam.trials.amplitude_bins.amplitude_trend`). Where the model is linear
     its slopes are ~0; the data's slopes beyond theirs say what changes with amplitude:
     f1 falling with amplitude (softening), ζ1 rising (drag) or falling (friction).
-    Empty when the record holds fewer than three windows.
+    Empty when the record holds fewer than three windows. Also returns the data's
+    change-of-state test (:func:`bayesbeam.trials.state_change.state_change`, as JSON),
+    which no catalogue model explains and is reported whatever the model (None when the
+    curves could not be made).
     """
     from bayesbeam.trials.amplitude import amplitude_curves
     from bayesbeam.trials.amplitude_bins import amplitude_trend, tip_factor
+    from bayesbeam.trials.state_change import state_change
 
     out: dict[str, dict[str, float]] = {}
+    change = None
     if not (np.isfinite(f1) and f1 > 0) or t[-1] - t[0] < 3 * 4.0 / f1:
         notes.append("amplitude trends: record shorter than three windows of 4 periods")
-        return out
+        return out, change
     tf = tip_factor(trial.beam)
     for side, y in (("data", data), ("model", pred)):
         try:
@@ -480,7 +494,9 @@ def _amplitude_trends(trial: Any, t: np.ndarray, data: np.ndarray, pred: np.ndar
                                  tip_factor=tf)
         except SignatureError as err:  # too short, or no mode-1 peak: say so
             notes.append(f"amplitude trends ({side}): {err}")
-            return {}
+            return {}, change
+        if side == "data":
+            change = state_change(c).to_json_dict()
         fs, fse, nf = amplitude_trend(c.amplitude_m, c.frequency[:, 0], c.frequency_se[:, 0],
                                       hop=c.hop_s, window=c.window_s)
         zs, zse, _ = amplitude_trend(c.amplitude_m, c.zeta[:, 0], c.zeta_se[:, 0],
@@ -490,7 +506,7 @@ def _amplitude_trends(trial: Any, t: np.ndarray, data: np.ndarray, pred: np.ndar
                      "zeta1_per_mm_se": zse, "n_windows": nf,
                      "amplitude_min_m": float(amp.min()) if amp.size else math.nan,
                      "amplitude_max_m": float(amp.max()) if amp.size else math.nan}
-    return out
+    return out, change
 
 
 # --------------------------------------------------------------------------- plots

@@ -29,6 +29,7 @@ __all__ = [
     "model_extra",
     "overlay_curves",
     "plot_mode1",
+    "plot_mode1_in_time",
     "plot_mode2",
     "plot_residual_spectrogram",
     "write_amplitude_figures",
@@ -41,6 +42,7 @@ FIGURES = {
     "zeta1": "zeta1_vs_amplitude.png",
     "mode2": "mode2_vs_amplitude.png",
     "spectrogram": "residual_spectrogram.png",
+    "time": "mode1_vs_time.png",
 }
 
 Extra = Mapping[str, tuple[Any, Any]]
@@ -226,9 +228,53 @@ def plot_residual_spectrogram(curves: Any, *, title: str = "") -> Any:
     return fig
 
 
+def plot_mode1_in_time(curves: Any, *, change: Any = None, title: str = "") -> Any:
+    """f1 and ζ1 window by window against time, a change of state marked.
+
+    Parameters
+    ----------
+    curves : bayesbeam.trials.amplitude.AmplitudeCurves
+    change : bayesbeam.trials.state_change.StateChange, optional
+        Drawn as a shaded band ``time_s ± time_halfwidth_s`` with the levels before and
+        after, when ``change.found``.
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig = _figure(2)
+    axes = fig.subplots(2, 1, sharex=True)
+    t = np.asarray(curves.centre, dtype=float)
+    for ax, (y, se, label, before, after) in zip(axes, (
+            (curves.frequency[:, 0], curves.frequency_se[:, 0], "f1 [Hz]",
+             "frequency_before_hz", "frequency_after_hz"),
+            (curves.zeta[:, 0], curves.zeta_se[:, 0], "ζ1", "zeta_before", "zeta_after")),
+            strict=True):
+        ok = np.isfinite(y)
+        ax.errorbar(t[ok], y[ok], yerr=np.where(np.isfinite(se[ok]), se[ok], 0.0), fmt="o",
+                    ms=3, lw=0.8, color="0.45", label="windows (±1 SE)")
+        if change is not None and change.found:
+            lo = change.time_s - change.time_halfwidth_s
+            hi = change.time_s + change.time_halfwidth_s
+            ax.axvspan(lo, hi, color="C3", alpha=0.15, label="change of state")
+            ax.hlines([change.levels[before]], t[ok].min(), lo, colors="C0", lw=1.2,
+                      label="level before")
+            ax.hlines([change.levels[after]], hi, t[ok].max(), colors="C1", lw=1.2,
+                      label="level after")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    state = ("" if change is None else
+             "; change of state" if change.found else "; no change of state")
+    axes[0].set_title(f"{title}mode 1 in time{state}")
+    return fig
+
+
 def write_amplitude_figures(curves: Any, outdir: str | Path, *,
                             extra: Mapping[str, Any] | None = None, title: str = "",
-                            dpi: int = 110) -> list[Path]:
+                            dpi: int = 110, change: Any = None) -> list[Path]:
     """Write figures (a)-(d) as PNG files into ``outdir`` (names in :data:`FIGURES`).
 
     Parameters
@@ -244,6 +290,8 @@ def write_amplitude_figures(curves: Any, outdir: str | Path, *,
         Prefix of the figure titles (e.g. the trial name).
     dpi : int
         Resolution.
+    change : bayesbeam.trials.state_change.StateChange, optional
+        A change of state to mark on the f1, ζ1-in-time figure.
 
     Returns
     -------
@@ -263,6 +311,7 @@ def write_amplitude_figures(curves: Any, outdir: str | Path, *,
                             title=pre + "mode 2 against mode-1 amplitude"),
         "spectrogram": plot_residual_spectrogram(
             curves, title=pre + "residual of the windowed modal fit"),
+        "time": plot_mode1_in_time(curves, change=change, title=pre),
     }
     paths = []
     for key, fig in figs.items():
