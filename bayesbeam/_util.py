@@ -20,9 +20,14 @@
   what is wrong and how to fix it, in the caller's error class;
 * :func:`atomic_path` and :func:`write_text_atomic`: write a file under a temporary
   name in its folder and rename it into place, so that an interrupted or failed write
-  (disk full, kill -9) leaves the previous file whole, never a truncated one.
+  (disk full, kill -9) leaves the previous file whole, never a truncated one;
+* :func:`progress_bar`: the one progress bar of every long loop (``tqdm``): a bar on a
+  terminal, a widget in Jupyter, a plain line every ``log_interval`` s in a log file;
+* :func:`interval_digits` and :func:`fmt_interval`: enough significant digits that a
+  value and the ends of its interval print as different numbers.
 
-Only the standard library is imported at import time (numpy when a value needs it).
+Only the standard library is imported at import time (numpy when a value needs it, tqdm
+when a bar is made).
 This module imports nothing from bayesbeam: every layer may use it.
 """
 
@@ -47,9 +52,12 @@ __all__ = [
     "file_sha256",
     "finite_json",
     "finite_or_none",
+    "fmt_interval",
+    "interval_digits",
     "json_default",
     "lazy_exports",
     "one_blas_thread",
+    "progress_bar",
     "read_toml",
     "write_text_atomic",
 ]
@@ -335,3 +343,137 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     """
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- progress
+
+
+def _in_notebook() -> bool:
+    """Tell whether this runs inside a Jupyter kernel (IPython's ``ZMQInteractiveShell``)."""
+    ipython = sys.modules.get("IPython")
+    if ipython is None:
+        return False
+    shell = getattr(ipython, "get_ipython", lambda: None)()
+    return type(shell).__name__ == "ZMQInteractiveShell"
+
+
+class _LineLog:
+    """A text stream for tqdm in a log file: each refresh becomes one full line.
+
+    tqdm redraws its line with carriage returns, which a log file or a CI console keeps as
+    one ever-growing line; here every non-empty refresh is written as its own line.
+    """
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+        self._last = ""
+
+    def write(self, text: str) -> int:
+        for part in text.replace("\r", "\n").split("\n"):
+            part = part.strip()
+            if part and part != self._last:
+                self.stream.write(part + "\n")
+                self._last = part
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def progress_bar(total: float | None, desc: str, *, enabled: bool = True, unit: str = "it",
+                 log_interval: float = 30.0, **kwargs: Any) -> Any:
+    """Make a ``tqdm`` progress bar on stderr that works on a terminal, in Jupyter and in a log.
+
+    On a terminal: tqdm's bar, redrawn at most every 0.5 s, with its time estimate. In a
+    Jupyter kernel with ``ipywidgets``: the notebook widget (plain tqdm text without it).
+    Otherwise (stderr redirected to a file or a pipe): one full line at most every
+    ``log_interval`` s, so a log shows the progress without carriage-return debris.
+
+    Parameters
+    ----------
+    total : float or None
+        Number of units to do (None: unknown, no percentage).
+    desc : str
+        What runs (stage and model), shown before the bar.
+    enabled : bool, default True
+        False gives a disabled bar (every call is a no-op).
+    unit : str, default "it"
+    log_interval : float, default 30.0
+        Seconds between two lines when stderr is not a terminal.
+    **kwargs
+        Passed to ``tqdm`` (e.g. ``initial``, ``postfix``).
+
+    Returns
+    -------
+    tqdm.tqdm
+        Use as a context manager; ``update``, ``set_postfix_str``, ``close``.
+    """
+    from tqdm import tqdm as bar_class
+
+    stream: Any = sys.stderr
+    tty = bool(getattr(stream, "isatty", lambda: False)())
+    notebook = _in_notebook()
+    if notebook and importlib.util.find_spec("ipywidgets") is not None:
+        from tqdm.notebook import tqdm as bar_class  # noqa: F811 (the widget)
+    elif not tty and not notebook:
+        stream = _LineLog(stream)
+    opts: dict[str, Any] = {
+        "mininterval": 0.5 if (tty or notebook) else float(log_interval),
+        "dynamic_ncols": tty,
+        "ascii": None if tty else True,
+    }
+    opts.update(kwargs)
+    return bar_class(total=total, desc=desc, unit=unit, file=stream, disable=not enabled,
+                     leave=True, **opts)
+
+
+# --------------------------------------------------------------------------- intervals
+
+
+def interval_digits(value: float, lo: float, hi: float, minimum: int = 3,
+                    maximum: int = 12) -> int:
+    """Significant digits that print ``value``, ``lo`` and ``hi`` as different numbers.
+
+    The interval's width must show in the printed figures: with ``d`` significant
+    digits the last digit of ``x`` is worth ``10**(floor(log10|x|) - d + 1)``, and it must
+    be at most a tenth of the smallest gap between the three numbers (e.g. E = 70.00e9
+    [69.98e9, 70.02e9] needs 5 digits, where four print 7.000e10 three times).
+
+    Parameters
+    ----------
+    value, lo, hi : float
+        The estimate and its interval ends.
+    minimum, maximum : int, default 3 and 12
+        Bounds of the answer.
+
+    Returns
+    -------
+    int
+    """
+    xs = [float(v) for v in (value, lo, hi)]
+    if not all(math.isfinite(x) for x in xs):
+        return minimum
+    gaps = [abs(a - b) for a, b in ((xs[0], xs[1]), (xs[2], xs[0]), (xs[2], xs[1]))]
+    gaps = [g for g in gaps if g > 0]
+    big = max(abs(x) for x in xs)
+    if not gaps or big == 0:
+        return minimum
+    need = math.floor(math.log10(big)) - math.floor(math.log10(min(gaps) / 10)) + 1
+    return int(min(maximum, max(minimum, need)))
+
+
+def fmt_interval(value: float, lo: float, hi: float, minimum: int = 3) -> tuple[str, str, str]:
+    """``value``, ``lo``, ``hi`` as strings with :func:`interval_digits` significant digits.
+
+    Parameters
+    ----------
+    value, lo, hi : float
+    minimum : int, default 3
+
+    Returns
+    -------
+    tuple of str
+    """
+    d = interval_digits(value, lo, hi, minimum=minimum)
+    # "#": keep trailing zeros, so 70.00e9 does not print as 7e+10 beside 6.998e+10.
+    return tuple(f"{float(x):#.{d}g}" for x in (value, lo, hi))  # type: ignore[return-value]

@@ -11,10 +11,9 @@ The trial is synthetic, from the source's single-ply beam with a physical modulu
 a first-mode damping ratio of 0.5 %, released from a 5 mm tip deflection, white
 noise of 10 µm.
 
-With ``--jobs 2`` the three fits run in two processes through
-:mod:`bayesbeam.jobs.executor` (bitwise the same results, see its docstring) and the
-ranking is rebuilt from their result folders with
-:func:`bayesbeam.comparison.compare.compare_scores`.
+With ``--jobs 2`` the three fits run in two processes
+(``compare(..., executor=...)`` with :func:`bayesbeam.jobs.executor.make_executor`;
+bitwise the same results as the serial run).
 
 Run: ``.venv/bin/python studies/bench_compare.py [--jobs N] [--target-ess X] [--max-steps N]``.
 """
@@ -23,17 +22,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
-from bayesbeam.comparison.compare import compare, compare_scores
+from bayesbeam.comparison.compare import compare
 from bayesbeam.inference.problem import BETA1
 from bayesbeam.inference.settings import FIT_DEFAULTS
 from bayesbeam.jobs.bench import bench_beam
-from bayesbeam.trials.io import write_trial
 from bayesbeam.trials.synthetic import simulate_trial
 
 MODELS = ("viscous", "viscous+kv", "viscous+sh")
@@ -77,20 +73,13 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"trial: {trial.times.size} samples, {args.elements} elements, models {MODELS}, "
           f"jobs {args.jobs}")
     t0, c0 = time.perf_counter(), time.process_time()
-    if args.jobs == 1:
-        cmp = compare(trial, MODELS, seed=args.seed, n_elements=args.elements,
-                      target_ess=args.target_ess, max_steps=args.max_steps)
-    else:
-        from bayesbeam.jobs.executor import load_score, run_fits
-        from bayesbeam.jobs.tasks import fit_tasks
+    from bayesbeam.jobs.executor import make_executor
 
-        with tempfile.TemporaryDirectory(prefix="bench-compare-") as tmp:
-            path = write_trial(trial, Path(tmp) / "trial.toml")
-            settings = {"n_elements": args.elements, "target_ess": args.target_ess,
-                        "max_steps": args.max_steps}
-            tasks = fit_tasks([path], MODELS, seed=args.seed, settings=settings)
-            outs = run_fits(tasks, Path(tmp) / "out", jobs=args.jobs, progress=False)
-            cmp = compare_scores([load_score(o.path) for o in outs])
+    # --jobs N: the models' fits in N processes (bitwise the serial numbers).
+    with make_executor(args.jobs) as executor:
+        cmp = compare(trial, MODELS, seed=args.seed, n_elements=args.elements,
+                      target_ess=args.target_ess, max_steps=args.max_steps,
+                      executor=executor)
     # CPU time of this process only: with --jobs > 1 the fits' CPU is in the workers.
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     print(cmp)

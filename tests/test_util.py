@@ -79,3 +79,53 @@ def test_atomic_path_keeps_the_old_file_when_a_write_fails(tmp_path):
             raise OSError(28, "No space left on device")  # as a full disk's write
     assert path.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]  # no temporary left
+
+
+# --------------------------------------------------------------------------- intervals
+
+
+@pytest.mark.parametrize(
+    ("value", "lo", "hi"),
+    [
+        (70.0e9, 69.98e9, 70.02e9),  # four digits print 7.000e+10 three times
+        (0.012345, 0.012301, 0.012399),
+        (1.0, 0.5, 2.0),
+        (-3.2e-7, -3.3e-7, -3.1e-7),
+        (123456.0, 123455.9, 123456.2),
+    ],
+)
+def test_interval_prints_three_different_numbers(value, lo, hi):
+    from bayesbeam._util import fmt_interval
+
+    texts = fmt_interval(value, lo, hi)
+    assert len(set(texts)) == 3, texts
+    # and each printed number is within its last shown digit of the true one
+    for t, x in zip(texts, (value, lo, hi), strict=True):
+        digits = len(t.split("e")[0].replace("-", "").replace(".", "").lstrip("0"))
+        assert abs(float(t) - x) <= 0.5 * 10 ** (np.floor(np.log10(abs(x))) - digits + 1) * 1.0001
+
+
+def test_interval_digits_bounds():
+    from bayesbeam._util import interval_digits
+
+    assert interval_digits(1.0, 1.0, 1.0) == 3  # no width: the minimum
+    assert interval_digits(float("nan"), 0.0, 1.0) == 3
+    assert interval_digits(1.0, 1.0 - 1e-15, 1.0 + 1e-15) == 12  # capped
+
+
+# --------------------------------------------------------------------------- progress
+
+
+def test_progress_bar_in_a_log_is_whole_lines(capsys):
+    from bayesbeam._util import progress_bar
+
+    with progress_bar(4, "stage model", unit="step", log_interval=0.0) as bar:
+        for _ in range(4):
+            bar.update(1)
+    err = capsys.readouterr().err
+    assert "\r" not in err and "\x1b" not in err  # no terminal control in a log
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("stage model: 100%") and "4/4" in lines[-1]
+    with progress_bar(4, "off", enabled=False) as bar:
+        bar.update(4)
+    assert capsys.readouterr().err == ""

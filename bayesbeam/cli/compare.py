@@ -5,8 +5,10 @@ table), ``comparison.html``, ``comparison.png`` (log evidence with error bars an
 ELPD differences), ``zeta_vs_f.png`` (each model's modal damping ratio against
 frequency, 90 % intervals, the record's own estimates overlaid; ``modes`` in the JSON)
 and each model's fit in ``OUTDIR/<model>/`` (``posterior.nc``: the complete ArviZ tree,
-``summary.json``, the sampler checkpoint ``chain.h5``). Prints the table, or the JSON
-record of ``comparison.json`` with ``--json``. See :mod:`bayesbeam.comparison.compare`
+``summary.json``, and in a serial run the sampler checkpoint ``chain.h5``). Prints the
+table, or the JSON record of ``comparison.json`` with ``--json``. ``--jobs N`` fits the
+models in N local processes, ``--scheduler ADDRESS`` on a Dask cluster; the numbers are
+those of the serial run. See :mod:`bayesbeam.comparison.compare`
 for the rules.
 """
 
@@ -124,6 +126,7 @@ def register(subparsers: Any) -> None:
                     help="tie threshold on |Δ log Z| in nats (default 1; Kass & Raftery 1995)")
     sp.add_argument("--loo-draws", type=int, default=1000,
                     help="posterior draws for the pointwise log-likelihood (LOO, WAIC)")
+    opts.add_executor_options(sp)
     opts.add_json_option(sp)
     sp.set_defaults(func=run)
 
@@ -144,7 +147,9 @@ def run(args: argparse.Namespace) -> int:
     """
     from bayesbeam.cli.outdir import stamp
     from bayesbeam.comparison.compare import compare
+    from bayesbeam.jobs.executor import make_executor
     from bayesbeam.physics.models import parse_model
+
     models = [parse_model(m.strip()).name for m in str(args.models).split(",") if m.strip()]
     if not models:
         raise CompareCLIError("--models is empty; give e.g. viscous,viscous+kv")
@@ -160,17 +165,20 @@ def run(args: argparse.Namespace) -> int:
     if odds is not None:
         odds = {pre.model_name(k): v for k, v in odds.items()}
     outdir = Path(args.outdir)
-    result = compare(
-        trial,
-        models,
-        prior_odds=odds,
-        threshold=args.threshold,
-        n_loo_draws=args.loo_draws,
-        outdir=outdir,
-        progress=True,
-        initial=pre.initial,
-        **opts.fit_settings(args),
-    )
+    # The models are fitted in parallel with --jobs/--scheduler (same numbers as serial).
+    with make_executor(args.jobs, args.scheduler) as executor:
+        result = compare(
+            trial,
+            models,
+            prior_odds=odds,
+            threshold=args.threshold,
+            n_loo_draws=args.loo_draws,
+            outdir=outdir,
+            progress=True,
+            executor=executor,
+            initial=pre.initial,
+            **opts.fit_settings(args),
+        )
     extra = {"preprocessing": pre.to_json_dict(), **stamp(args, trial)}
     paths = result.save(outdir, extra=extra, trial=trial)  # modal posteriors need the trial
     if args.json:  # the record of comparison.json, as written

@@ -39,14 +39,13 @@ def register(subparsers: Any) -> None:
     )
     sp.add_argument("-o", "--outdir", type=Path, default=Path("bayesbeam-demo"),
                     help="output folder (default ./bayesbeam-demo)")
-    sp.add_argument("--jobs", type=int, default=None,
-                    help="worker processes (default: one per CPU core)")
-    sp.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="Dask scheduler address, e.g. tcp://host:8786 (needs bayesbeam[dask])")
+    opts.add_executor_options(sp, default_jobs=None,
+                              jobs_help="worker processes (default: one per CPU core)")
     sp.add_argument("--quick", action="store_true",
                     help="first trial of each beam only, shorter chains (about a minute)")
     sp.add_argument("--data", type=Path, default=None,
-                    help="folder of the trials (default: the repository's data/)")
+                    help="folder of the trials (default: the example trials installed with "
+                         "the package)")
     sp.add_argument("--force", action="store_true", help="recompute cached results")
     opts.add_json_option(sp, help="print replication.json instead")
     sp.set_defaults(func=run)

@@ -6,6 +6,7 @@
         [--max-rounds N] [--candidates kv,tip_mass,...] [--elements N]
         [--initial release|impulse|modes:K] [--decimate Q | --resample DT]
         [--window T0 T1] [--priors PRIORS.toml] [--max-steps N] [--target-ess X]
+        [--jobs N | --scheduler tcp://host:port]
 
 Runs :func:`bayesbeam.diagnosis.diagnose.diagnose` (procedure and thresholds in its module
 docstring) and writes into ``OUTDIR``:
@@ -15,11 +16,16 @@ docstring) and writes into ``OUTDIR``:
                              when none), ``rounds`` (``cause``, ``equivalent``,
                              ``delta_log_evidence``, ``delta_log_evidence_err``,
                              ``delta_elpd``, ``rms_before``, ``rms_after``, ...),
-                             ``final_model``, signatures, thresholds, notes
+                             ``final_model``, ``final_posterior`` (+ ``_units``),
+                             ``modes`` (f_k, ζ_k posteriors of the baseline and the
+                             final model), signatures, thresholds, notes
 ``report.md``                short narrative: what the baseline gets wrong, the named
                              causes, the gains
 ``signatures_baseline.png``  residual signatures of the baseline fit
 ``signatures_final.png``     residual signatures of the final model's fit
+``zeta_vs_f.png``            ζ_k against f_k of the baseline and the final model
+``fits/MODEL/``              ``posterior.nc`` (complete ArviZ tree) and ``summary.json``
+                             of the baseline and the final model
 ===========================  ==========================================================
 
 ``--json`` prints ``diagnosis.json`` on stdout; otherwise the narrative is printed.
@@ -83,6 +89,9 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--target-ess", type=float, default=DIAGNOSIS_DEFAULTS.target_ess,
                     help=f"bulk ESS target per sampled model "
                          f"(default {DIAGNOSIS_DEFAULTS.target_ess:g})")
+    opts.add_executor_options(
+        sp, jobs_help="worker processes for each round's candidate searches and sampling "
+                      "runs (default 1: in this process; 0: one per CPU core)")
     opts.add_json_option(sp, help="print the record as JSON")
     sp.set_defaults(func=run)
 
@@ -128,6 +137,30 @@ def _predictions(trial: Any, d: Any, seed: int) -> dict[str, Any]:
     return out
 
 
+def _save_fits(trial: Any, d: Any, outdir: Path) -> dict[str, Any]:
+    """Write the baseline's and the final model's complete ArviZ trees and summaries.
+
+    Into ``outdir/fits/MODEL/`` (``posterior.nc``, ``summary.json``), as ``fit`` writes
+    them, so that ``arviz.loo`` / ``arviz.compare`` work on a diagnosis too.
+
+    Returns
+    -------
+    dict
+        ``{model: FitResult}`` with the problem attached (for the modal posteriors).
+    """
+    import numpy as np
+
+    out = {}
+    for name in dict.fromkeys((d.baseline, d.final_model)):
+        res = d.fits.get(name)
+        if res is None:
+            continue
+        res = res.with_problem(trial)
+        res.save(outdir / "fits" / name, rng=np.random.default_rng(res.chain.seed))
+        out[name] = res
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     """Execute ``bayesbeam diagnose``.
 
@@ -144,6 +177,9 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.cli.outdir import stamp
     from bayesbeam.diagnosis.diagnose import CATALOGUE, diagnose
     from bayesbeam.diagnosis.signatures import plot_signatures
+    from bayesbeam.inference.modal import modal_posterior
+    from bayesbeam.inference.modal_plots import plot_zeta_vs_f
+    from bayesbeam.jobs.executor import make_executor
     from bayesbeam.physics.models import parse_model
     from bayesbeam.report.amplitude_plots import write_model_overlays
     from bayesbeam.stats.priors import PriorSet
@@ -157,14 +193,19 @@ def run(args: argparse.Namespace) -> int:
         priors = dict(PriorSet.from_toml(args.priors))
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    with one_blas_thread():
+    # --jobs/--scheduler: each round's candidate searches and sampling runs in parallel
+    # (the same numbers as serial).
+    with one_blas_thread(), make_executor(args.jobs, args.scheduler) as executor:
         d = diagnose(
             trial, model, max_rounds=args.max_rounds,
             candidates=tuple(cands) if cands else CATALOGUE, initial=pre.initial,
-            priors=priors, progress=opts.say, **opts.fit_settings(args),
+            priors=priors, progress=opts.say, executor=executor, **opts.fit_settings(args),
         )
     record = d.to_json_dict()
     record["preprocessing"] = pre.to_json_dict()
+    fitted = _save_fits(trial, d, outdir)
+    modal = {name: modal_posterior(res.problem, res) for name, res in fitted.items()}
+    record["modes"] = {name: m.to_json_dict() for name, m in modal.items()}
     record.update(stamp(args, trial))
     text = json.dumps(record, indent=2, allow_nan=False)
     write_text_atomic(outdir / "diagnosis.json", text + "\n")
@@ -174,6 +215,9 @@ def run(args: argparse.Namespace) -> int:
             fig = plot_signatures(sig, title=f"{trial.name}: {sig.model} ({label})")
             with atomic_path(outdir / f"signatures_{label}.png") as tmp:
                 fig.savefig(tmp, dpi=110)
+    if modal:
+        plot_zeta_vs_f(modal, outdir / "zeta_vs_f.png",
+                       title=f"{trial.name}: damping ratio against frequency")
     write_model_overlays(trial, _predictions(trial, d, args.seed), outdir, say=opts.say)
     if args.json:
         print(text)

@@ -13,7 +13,8 @@ window and then decimate (anti-alias FIR) or resample (for non-uniform stamps);
 the finished steps; ``--resume`` continues them); then write into ``OUTDIR``:
 
 ==========================  ===========================================================
-``posterior.nc``            ArviZ tree (NetCDF): posterior thinned to about 1000
+``posterior.nc``            complete ArviZ tree (NetCDF), units on every variable:
+                            posterior thinned to about 1000
                             draws, pointwise log-likelihood of those draws,
                             posterior predictive, observed data, prior draws
 ``summary.json``            summary and diagnostics of the full (unthinned) chain;
@@ -56,11 +57,6 @@ from bayesbeam.cli import options as opts
 from bayesbeam.inference.settings import FIT_DEFAULTS
 
 __all__ = ["FitCLIError", "register", "run"]
-
-#: Draws kept for the pointwise log-likelihood in posterior.nc (the brief: ~1000).
-LOGLIK_DRAWS = 1000
-#: Upper bound on stored (draws x samples) values per observation group (~200 MB).
-MAX_VALUES = 25_000_000
 
 
 class FitCLIError(ValueError):
@@ -184,28 +180,6 @@ def _mode_freqs(problem: Any, result: Any) -> Any:
     return f
 
 
-def _observation_groups(problem: Any, result: Any, rng: Any) -> dict[str, Any]:
-    """Thinned result with pointwise log-likelihood and posterior predictive arrays."""
-    import numpy as np
-
-    from bayesbeam.inference.fit import thin_result
-    from bayesbeam.inference.predictive import PPC_DRAWS, predictive_group
-
-    T = problem.data.size
-    ndim = result.chain.ndim
-    n_ll = max(result.chain.nwalkers, min(LOGLIK_DRAWS, MAX_VALUES // T))
-    thin = thin_result(result, n_ll)
-    c = thin.chain
-    U = c.samples.reshape(-1, ndim)
-    ll = np.empty((U.shape[0], T))
-    batch = max(1, 4_000_000 // T)
-    for i in range(0, U.shape[0], batch):
-        ll[i : i + batch] = problem.log_likelihood_pointwise(U[i : i + batch])
-    ll = ll.reshape(c.nsteps, c.nwalkers, T).swapaxes(0, 1)
-    pp = predictive_group(problem, c.samples, rng, max_draws=PPC_DRAWS)
-    return {"thin": thin, "log_likelihood": ll, "posterior_predictive": pp}
-
-
 def run(args: argparse.Namespace) -> int:
     """Execute ``bayesbeam fit`` (see the module docstring).
 
@@ -226,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam._util import write_text_atomic
     from bayesbeam.cli.outdir import stamp
     from bayesbeam.inference.fit import fit
-    from bayesbeam.inference.predictive import PPC_DRAWS, PRIOR_DRAWS, posterior_predictive
+    from bayesbeam.inference.predictive import PPC_DRAWS, posterior_predictive
     from bayesbeam.inference.problem import Problem, default_priors
     from bayesbeam.physics.models import parse_model
     from bayesbeam.report.amplitude_plots import write_model_overlays
@@ -273,20 +247,18 @@ def run(args: argparse.Namespace) -> int:
     problem = problem.with_mesh(int(result.settings["n_elements"]))  # the converged mesh
 
     rng = np.random.default_rng([args.seed, 1])  # independent of the sampler's stream
-    groups = _observation_groups(problem, result, rng)
-    groups["thin"].save(
-        outdir,
-        log_likelihood=groups["log_likelihood"],
-        posterior_predictive=groups["posterior_predictive"],
-        observed=np.asarray(trial.values),
-        obs_coords=np.asarray(trial.times),
-        prior_samples=PRIOR_DRAWS,
-    )
+    # The complete ArviZ tree (FitResult.to_inference_data with the fitted problem):
+    # thinned draws with their pointwise log-likelihood, posterior predictive, observed
+    # data on the time axis, prior draws; every variable with its units.
+    fitted = result.with_problem(problem)
+    tree = fitted.to_inference_data(rng=rng)
+    fitted.save(outdir, idata=tree)
     payload = result.to_json_dict()
     payload.update(stamp(args, provenance=False))  # the fit's own provenance is kept
     payload["preprocessing"] = pre.to_json_dict()
     payload["total_seconds"] = time.perf_counter() - t_start
-    payload["posterior_nc_draws"] = int(groups["thin"].chain.nsteps * groups["thin"].chain.nwalkers)
+    payload["posterior_nc_draws"] = int(tree["posterior"].sizes["chain"]
+                                        * tree["posterior"].sizes["draw"])
     # f_k and zeta_k of the first modes with uncertainty (and the data's own estimates).
     from bayesbeam.inference.modal import modal_posterior
     from bayesbeam.inference.modal_plots import plot_zeta_vs_f

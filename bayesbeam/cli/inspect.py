@@ -11,11 +11,14 @@ resolved, the offset, the residual's spectral lines) and writes into ``OUTDIR``:
 
 ==============================  =======================================================
 ``inspect.json``                the record (:meth:`AmplitudeCurves.to_json_dict`) with
-                                the trial's name and the wall time
+                                the trial's name, the wall time and ``state_change``
+                                (a change of state within the record:
+                                :func:`bayesbeam.trials.state_change.state_change`)
 ``f1_vs_amplitude.png``         (a) f1 against mode-1 displacement amplitude
 ``zeta1_vs_amplitude.png``      (b) ζ1 against amplitude
 ``mode2_vs_amplitude.png``      (c) f2/f1 and ζ2 (only when mode 2 is resolved)
 ``residual_spectrogram.png``    (d) residual spectrogram with the residual lines
+``mode1_vs_time.png``           (e) f1 and ζ1 against time, a change of state marked
 ==============================  =======================================================
 
 The amplitude axis is the tip displacement (mode-1 shape of the trial's beam,
@@ -33,7 +36,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import one_blas_thread, write_text_atomic
+from bayesbeam._util import one_blas_thread, progress_bar, write_text_atomic
 from bayesbeam.cli import options as opts
 
 __all__ = ["InspectCLIError", "register", "run", "summary_text"]
@@ -86,21 +89,25 @@ def _check(args: argparse.Namespace) -> None:
 
 
 class _Progress:
-    """Windows done / total and ETA on stderr, once the run has taken a few seconds."""
+    """Windows done / total with a time estimate (:func:`bayesbeam._util.progress_bar`).
 
-    def __init__(self, quiet_s: float = 3.0, every_s: float = 2.0) -> None:
+    The bar appears only once the run has taken ``quiet_s`` seconds: a short record
+    prints nothing but its result.
+    """
+
+    def __init__(self, quiet_s: float = 3.0) -> None:
         self.start = time.perf_counter()
         self.quiet_s = quiet_s
-        self.every_s = every_s
-        self.last = -1.0
+        self.bar: Any = None
 
     def __call__(self, done: int, total: int) -> None:
-        el = time.perf_counter() - self.start
-        if el < self.quiet_s or (el - self.last < self.every_s and done < total):
-            return
-        eta = el / done * (total - done)
-        print(f"inspect: windows {done}/{total}, ETA {eta:.0f} s", file=sys.stderr, flush=True)
-        self.last = el
+        if self.bar is None:
+            if time.perf_counter() - self.start < self.quiet_s or done >= total:
+                return
+            self.bar = progress_bar(total, "inspect: amplitude windows", unit="window")
+        self.bar.update(done - self.bar.n)
+        if done >= total:
+            self.bar.close()
 
 
 def _fmt(v: float | None, spec: str) -> str:
@@ -143,6 +150,9 @@ def summary_text(record: dict[str, Any]) -> str:
             f"{x['frequency_hz']:.2f} Hz ({x['label']}, {x['amplitude']:.2g})" for x in rl))
     else:
         lines.append("  residual lines: none above the threshold")
+    sc = record.get("state_change")
+    if sc is not None:
+        lines.append(f"  {sc['reason']}")
     return "\n".join(lines)
 
 
@@ -164,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
     from bayesbeam.trials.amplitude import amplitude_curves, tip_factor
     from bayesbeam.trials.io import read_trial
     from bayesbeam.trials.preprocess import plan
+    from bayesbeam.trials.state_change import state_change
 
     _check(args)
     trial = read_trial(args.trial)
@@ -180,18 +191,20 @@ def run(args: argparse.Namespace) -> int:
         curves = amplitude_curves(trial.times, trial.values, f1=args.f1, n_modes=args.modes,
                                   periods=args.periods, quantity=trial.quantity,
                                   tip_factor=tip_factor(trial.beam), progress=_Progress())
+    change = state_change(curves)
     span = {k: v for k, v in pre.to_json_dict().items()
             if k in ("start", "end", "start_how", "end_how", "release", "given", "loader")}
     record = {"trial": trial.name, "n_samples": int(trial.times.size),
               "preprocessing": {**span, "note": "raw stamps in the span (no resampling)"},
               **curves.to_json_dict(),
+              "state_change": change.to_json_dict(),
               "wall_time_s": round(time.perf_counter() - tic, 3),
               **stamp(args, trial)}
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     text = json.dumps(record, indent=2, allow_nan=False)
     write_text_atomic(outdir / "inspect.json", text + "\n")
-    write_amplitude_figures(curves, outdir, title=trial.name)
+    write_amplitude_figures(curves, outdir, title=trial.name, change=change)
     from bayesbeam.report.html import write_report
 
     write_report(outdir, title=f"bayesbeam inspect: {trial.name}")

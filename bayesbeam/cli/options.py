@@ -14,7 +14,9 @@ two commands share has one name, default, help text and error message:
   :func:`bayesbeam.diagnosis.diagnose.diagnose`;
 * :func:`prepare_trial` reads the trial and applies ``--window`` and
   ``--decimate``/``--resample``;
-* :func:`print_json` prints a strict-JSON record (``--json``).
+* :func:`print_json` prints a strict-JSON record (``--json``);
+* :func:`add_executor_options` adds ``--jobs``/``--scheduler`` (where independent fits
+  run: :func:`bayesbeam.jobs.executor.make_executor`).
 
 Nothing heavy is imported at import time: the defaults come from
 :mod:`bayesbeam.inference.settings` (standard library only), the trial reader is
@@ -41,6 +43,7 @@ from bayesbeam.inference.settings import (
 __all__ = [
     "PREPROCESSING",
     "add_elements_option",
+    "add_executor_options",
     "add_fixed_mesh_option",
     "add_json_option",
     "add_outdir_seed_options",
@@ -197,6 +200,30 @@ def add_preprocessing_options(parser: argparse.ArgumentParser) -> None:
                         help="go on when the sanity checks before sampling find the beam or "
                              "the record implausible (a density no material has, no "
                              "oscillation above noise, ...): their errors become warnings")
+
+
+def add_executor_options(parser: argparse.ArgumentParser, *, default_jobs: int | None = 1,
+                         jobs_help: str = "worker processes for the fits (default 1: one "
+                                          "after another in this process; 0: one per "
+                                          "CPU core)") -> None:
+    """Add ``--jobs N`` and ``--scheduler ADDRESS``: where independent fits run.
+
+    The values go to :func:`bayesbeam.jobs.executor.make_executor` (local processes, or
+    a Dask cluster); the results do not depend on them.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The sub-command's parser.
+    default_jobs : int or None
+        Default of ``--jobs`` (None: the command chooses, e.g. one per core).
+    jobs_help : str
+        Help text of ``--jobs``.
+    """
+    parser.add_argument("--jobs", type=int, default=default_jobs, metavar="N", help=jobs_help)
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="Dask scheduler address, e.g. tcp://host:8786 (needs "
+                             "bayesbeam[dask]; takes precedence over --jobs)")
 
 
 def add_json_option(parser: argparse.ArgumentParser,

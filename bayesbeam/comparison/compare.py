@@ -12,6 +12,19 @@ The work is split by responsibility: scoring one model (:class:`ModelScore`,
 This module holds the :class:`Comparison` record, how it is built and how it is
 rendered (text, JSON, HTML, plot); the names of the other three are importable here too.
 
+Parallel fits
+-------------
+``compare(..., executor=...)`` maps :func:`_evaluate_job` over the models with any
+object that has the ``map`` of :class:`concurrent.futures.Executor` (a process pool, a
+Dask client's executor; the command line makes one with
+:func:`bayesbeam.jobs.executor.make_executor`, a layer above this one). Each job carries
+the trial itself (its arrays and metadata, pickled), the model, the settings and the
+seed; all models share the seed, as the tasks of :mod:`bayesbeam.jobs.tasks` do, so a
+model's numbers depend neither on the order of the models nor on the executor. Jobs run
+one at a time per process with one BLAS thread (:func:`_job_guard`), serial ones too:
+a parallel comparison is bitwise the serial one. A progress bar over the models
+(:func:`bayesbeam._util.progress_bar`) says which model is being fitted.
+
 When models are "indistinguishable"
 -----------------------------------
 Two models are reported indistinguishable when their log evidences differ by no more
@@ -44,17 +57,27 @@ equal by default) carry first-order errors from the evidence errors,
 
 from __future__ import annotations
 
+import contextlib
 import html
 import json
 import math
-from collections.abc import Mapping, Sequence
+import sys
+import threading
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import atomic_path, finite_json, write_text_atomic
+from bayesbeam._util import (
+    _in_notebook,
+    atomic_path,
+    finite_json,
+    one_blas_thread,
+    progress_bar,
+    write_text_atomic,
+)
 from bayesbeam.comparison.scoring import CompareError, ModelScore, evaluate
 from bayesbeam.comparison.sensitivity import (
     SensitivityRow,
@@ -73,6 +96,47 @@ __all__ = [
     "compare",
     "compare_scores",
 ]
+
+
+def _stderr_is_live() -> bool:
+    """Tell whether progress shows live: stderr is a terminal, or this runs in Jupyter."""
+    return bool(getattr(sys.stderr, "isatty", lambda: False)()) or _in_notebook()
+
+
+def _progress_note(bar: Any, text: str) -> None:
+    """Show ``text`` (the current model, trial, last result) beside a progress bar.
+
+    On a terminal or in Jupyter it shows at once; in a log (stderr a file or a pipe) the
+    next throttled line carries it, since a line per note would defeat the interval of
+    :func:`bayesbeam._util.progress_bar`.
+
+    Parameters
+    ----------
+    bar : tqdm.tqdm
+        From :func:`bayesbeam._util.progress_bar`.
+    text : str
+    """
+    bar.set_postfix_str(text, refresh=_stderr_is_live())
+
+
+#: One fit job at a time per process (re-entrant: a diagnosis job runs fits itself). The
+#: warning filters that :func:`evaluate` uses to record the sampler's warnings and the
+#: BLAS thread limit are process-wide, so jobs in threads of one process (a threaded Dask
+#: worker) must not overlap; parallelism comes from processes.
+_JOB_LOCK = threading.RLock()
+
+
+@contextlib.contextmanager
+def _job_guard() -> Iterator[None]:
+    """Run one executor job: alone in its process, with one BLAS thread.
+
+    One thread per job keeps parallel workers from oversubscribing the cores (the
+    matrices are small: threads cost more than they give) and the floating-point
+    reduction order the same wherever the job runs.
+    """
+    with _JOB_LOCK, one_blas_thread():
+        yield
+
 
 
 def _fmt(x: float, spec: str = ".2f") -> str:
@@ -603,15 +667,19 @@ def compare(
     sensitivity_factors: Sequence[float] = (0.5, 2.0),
     outdir: str | Path | None = None,
     progress: bool | None = None,
+    executor: Any = None,
     **settings: Any,
 ) -> Comparison:
     """Fit and compare several models on one trial.
 
     Each model is fitted and scored by :func:`evaluate` (same ``seed``), then ranked
-    by log evidence. Models tied with the best (|Δ log Z| within
-    ``max(2 sqrt(err_a² + err_b²), threshold)``) are listed in
-    ``indistinguishable`` and the verdict says so; posterior model probabilities
-    carry the evidence errors; ELPD-LOO differences are paired; the prior widths of
+    by log evidence. The fits are independent: with an ``executor`` they run in
+    parallel (local processes, a Dask cluster) and give bitwise the numbers of the
+    serial run, since each fit's input (the trial's arrays, the model, the settings and
+    the seed) travels with it and nothing depends on the order they finish in. Models
+    tied with the best (|Δ log Z| within ``max(2 sqrt(err_a² + err_b²), threshold)``)
+    are listed in ``indistinguishable`` and the verdict says so; posterior model
+    probabilities carry the evidence errors; ELPD-LOO differences are paired; the prior widths of
     the non-shared parameters are halved and doubled to show whether the ranking
     hinges on them (module docstring).
 
@@ -638,9 +706,19 @@ def compare(
         Prior width multipliers for the sensitivity analysis (empty to skip).
     outdir : path, optional
         Fits keep their checkpoints in ``outdir/<model>/`` (use
-        :meth:`Comparison.save` to write the results).
+        :meth:`Comparison.save` to write the results). Serial runs only: with an
+        ``executor`` the workers (possibly on machines without this file system) write
+        no checkpoint.
     progress : bool or None
-        Sampler progress lines.
+        A progress bar over the models on stderr
+        (:func:`bayesbeam._util.progress_bar`: which model is being fitted, with a
+        time estimate) and, in a serial run, the sampler's
+        progress lines; None: the bar only on a terminal or in Jupyter.
+    executor : concurrent.futures.Executor, optional
+        Any object with the ``map`` method of :class:`concurrent.futures.Executor`
+        (a ``ProcessPoolExecutor``, ``distributed.Client(...).get_executor()``; the
+        command line makes one with :func:`bayesbeam.jobs.executor.make_executor`).
+        None: one fit after another in this process.
     **settings
         Forward-model and sampler settings of every fit (``n_elements``, ``initial``,
         ``nwalkers``, ``target_ess``, ``max_steps``, ``min_steps``), with the defaults
@@ -661,14 +739,66 @@ def compare(
     unknown = sorted(set(priors) - set(names))
     if unknown:
         raise CompareError(f"prior overrides for {unknown}, which are not among {names}")
-    scores = [
-        evaluate(
-            trial, m, seed=seed, priors=priors.get(m.name), n_loo_draws=n_loo_draws,
-            proposal=proposal, n_proposal=n_proposal, progress=progress,
-            outdir=None if outdir is None else Path(outdir) / m.name, **settings,
-        )
+    jobs = [
+        {"trial": trial, "model": m.name, "seed": int(seed), "priors": priors.get(m.name),
+         "n_loo_draws": n_loo_draws, "proposal": proposal, "n_proposal": n_proposal,
+         "settings": dict(settings),
+         # Sampler lines and checkpoints only in this process (workers have neither
+         # this terminal nor, on a cluster, this file system).
+         "progress": progress if executor is None else False,
+         "outdir": (None if outdir is None or executor is not None
+                    else str(Path(outdir) / m.name))}
         for m in parsed
     ]
+    show = _stderr_is_live() if progress is None else bool(progress)
+    bar = progress_bar(len(jobs), f"compare {trial.name}", enabled=show, unit="model")
+    scores: list[ModelScore] = []
+    try:
+        if executor is None:
+            for job in jobs:
+                _progress_note(bar, f"fitting {job['model']}")
+                scores.append(_evaluate_job(job))
+                _progress_note(bar, f"{job['model']} done")
+                bar.update(1)
+        else:
+            # map yields in input order: the note names the model awaited next.
+            _progress_note(bar, f"fitting {len(jobs)} models; waiting for {jobs[0]['model']}")
+            for i, score in enumerate(executor.map(_evaluate_job, jobs)):
+                scores.append(score)
+                nxt = f"; waiting for {jobs[i + 1]['model']}" if i + 1 < len(jobs) else ""
+                _progress_note(bar, f"{score.name} done{nxt}")
+                bar.update(1)
+    finally:
+        bar.close()
     return compare_scores(scores, prior_odds=prior_odds, threshold=threshold,
                           sensitivity_factors=sensitivity_factors)
 
+
+def _evaluate_job(job: Mapping[str, Any]) -> ModelScore:
+    """Fit and score one model of :func:`compare` (the function an executor maps).
+
+    Module-level and fed plain data, so that it pickles to worker processes and Dask
+    workers: the result depends on ``job`` alone, not on where or in which order it runs.
+
+    Parameters
+    ----------
+    job : mapping
+        ``trial`` (the :class:`Trial` itself: its arrays and metadata travel with the
+        job, no path is read on the worker), ``model``, ``seed``, ``priors``,
+        ``n_loo_draws``, ``proposal``, ``n_proposal``, ``settings`` (fit settings),
+        ``progress`` and ``outdir`` (checkpoint folder or None).
+
+    Returns
+    -------
+    ModelScore
+        Pickles back from a worker (:meth:`FitResult.__reduce
+        <bayesbeam.inference.results.FitResult.__reduce__>`).
+    """
+    with _job_guard():
+        score = evaluate(
+            job["trial"], job["model"], seed=job["seed"], priors=job["priors"],
+            n_loo_draws=job["n_loo_draws"], proposal=job["proposal"],
+            n_proposal=job["n_proposal"], progress=job["progress"], outdir=job["outdir"],
+            **job["settings"],
+        )
+    return score

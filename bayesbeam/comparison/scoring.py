@@ -50,8 +50,8 @@ from typing import Any
 import numpy as np
 
 from bayesbeam._util import finite_json
-from bayesbeam.inference.fit import fit, thin_result
-from bayesbeam.inference.predictive import PRIOR_DRAWS, predictive_group
+from bayesbeam.inference.fit import fit
+from bayesbeam.inference.predictive import log_likelihood_group
 from bayesbeam.inference.problem import Problem
 from bayesbeam.inference.results import FitResult
 from bayesbeam.inference.settings import fit_settings
@@ -71,8 +71,6 @@ __all__ = ["CompareError", "ModelScore", "evaluate"]
 
 #: Warnings that evaluate() records in ModelScore.notes instead of re-issuing.
 _RECORDED = (NotConvergedWarning, EvidenceWarning, ParetoKWarning, WAICWarning)
-#: Forward-model batch for the pointwise log-likelihood (bounds memory: B x T floats).
-_BATCH = 256
 
 
 class CompareError(ValueError):
@@ -130,12 +128,17 @@ class ModelScore:
     noise : str
         ``"iid"`` or ``"ar1"`` (pointwise terms conditional on the previous sample).
     result : FitResult
-        The posterior.
+        The posterior, with the problem it was scored on (:attr:`FitResult.problem`; None
+        for a score read back from files).
     loglik : numpy.ndarray, shape (n_walkers, n_draws, T)
         Pointwise log-likelihood at the thinned draws (chains = walkers), for
         :func:`bayesbeam.stats.criteria.logo` over several trials.
     notes : tuple of str
         Reliability messages (sampler not converged, Pareto k, failed estimators).
+    draws : FitResult or None
+        The draws of :attr:`loglik` (:attr:`result` thinned to ``n_loo_draws``) with
+        the problem they were scored on (:attr:`FitResult.problem`), from which
+        :meth:`save` writes the complete tree; None for a score read back from files.
     """
 
     name: str
@@ -155,18 +158,17 @@ class ModelScore:
     loglik: np.ndarray
     notes: tuple[str, ...] = ()
     draws: FitResult | None = None
-    y_rep: np.ndarray | None = None
-    observed: np.ndarray | None = None
-    times: np.ndarray | None = None
 
     def save(self, folder: str | Path) -> dict[str, Path]:
         """Write the model's complete ArviZ tree (``posterior.nc``) and ``summary.json``.
 
-        The tree holds the draws of :attr:`loglik` (:attr:`draws`) with the pointwise
-        log-likelihood, the posterior predictive, the observed data on its time axis
-        and prior draws, so that ``arviz.loo`` and ``arviz.compare`` work on the file;
-        ``summary.json`` summarises the full chain. A score read back without them
-        (:func:`bayesbeam.jobs.executor.load_score`) saves its posterior only.
+        The tree (:meth:`bayesbeam.inference.results.FitResult.to_inference_data` of
+        :attr:`draws`) holds the draws of :attr:`loglik` with those pointwise terms, the
+        posterior predictive, the observed data on its time axis (s) and prior draws,
+        every variable with its ``units``, so that ``arviz.loo`` and ``arviz.compare``
+        work on the file and agree with this score; ``summary.json`` summarises the full
+        chain. A score read back without them (:func:`bayesbeam.jobs.executor.load_score`)
+        saves its posterior only.
 
         Parameters
         ----------
@@ -180,11 +182,7 @@ class ModelScore:
         """
         if self.draws is None or self.loglik.size == 0:
             return self.result.save(folder)
-        return self.draws.save(
-            folder, summary_from=self.result, log_likelihood=self.loglik,
-            posterior_predictive=self.y_rep, observed=self.observed, obs_coords=self.times,
-            prior_samples=PRIOR_DRAWS,
-        )
+        return self.draws.save(folder, summary_from=self.result, log_likelihood=self.loglik)
 
     @property
     def log_evidence(self) -> float:
@@ -228,13 +226,6 @@ class ModelScore:
                 "notes": list(self.notes),
             }
         )
-
-
-def _pointwise(problem: Problem, U: np.ndarray) -> np.ndarray:
-    out = np.empty((U.shape[0], problem.data.size))
-    for i in range(0, U.shape[0], _BATCH):
-        out[i : i + _BATCH] = problem.log_likelihood_pointwise(U[i : i + _BATCH])
-    return out
 
 
 def evaluate(
@@ -375,11 +366,8 @@ def evaluate(
         except EvidenceError as err:  # includes HessianNotNegativeDefiniteError
             notes.append(f"Laplace evidence not available: {err}")
         # Pointwise log-likelihood at thinned draws (walkers as chains for ArviZ).
-        draws = thin_result(result, n_loo_draws)
-        thin = draws.chain.samples
-        n_s, n_w, d = thin.shape
-        ll_flat = _pointwise(problem, thin.reshape(-1, d))
-        loglik = np.swapaxes(ll_flat.reshape(n_s, n_w, -1), 0, 1)
+        draws = result.thin(n_loo_draws).with_problem(problem)
+        loglik = log_likelihood_group(problem, draws.chain.samples)
         with warnings.catch_warnings():
             # ArviZ guesses dimension names from their lengths; with fewer draws per
             # walker than walkers it warns, though the names are given explicitly.
@@ -393,7 +381,7 @@ def evaluate(
             "cover an unconverged chain"
         )
     # Largest log-likelihood: LOO draws, MAP and the highest-posterior samples.
-    cands = [ll_flat.sum(axis=1)]
+    cands = [loglik.sum(axis=-1).ravel()]
     top = np.argsort(chain.flat_log_prob)[::-1][: max(0, int(n_top))]
     pts = chain.flat_samples[top]
     if result.map_u is not None:
@@ -403,7 +391,7 @@ def evaluate(
     max_ll = float(np.max(np.concatenate(cands)))
     k = problem.ndim
     n = int(problem.data.size)
-    n_calls = problem.n_calls - calls0 + extra_calls + ll_flat.shape[0]
+    n_calls = problem.n_calls - calls0 + extra_calls + loglik.shape[0] * loglik.shape[1]
     return ModelScore(
         name=model.name,
         n_params=k,
@@ -418,14 +406,9 @@ def evaluate(
         n_calls=int(n_calls),
         seconds=fit_seconds + time.perf_counter() - t_start,
         noise="ar1" if "rho" in problem.names else "iid",
-        result=result,
+        result=result.with_problem(problem),  # its complete tree: result.to_inference_data()
         loglik=loglik,
         notes=tuple(notes),
         draws=draws,
-        # the posterior-predictive group of the saved tree (its own random stream)
-        y_rep=predictive_group(problem, thin,
-                               np.random.default_rng(np.random.SeedSequence([int(seed), 2]))),
-        observed=np.asarray(problem.data, dtype=float),
-        times=np.asarray(problem.trial.times, dtype=float),
     )
 

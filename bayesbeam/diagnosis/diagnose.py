@@ -117,6 +117,9 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam._util import progress_bar
+from bayesbeam.comparison.compare import _progress_note
+
 # The records (and the text of the signatures, which their narrative uses) are re-exported.
 from bayesbeam.diagnosis.records import CandidateScore, Diagnosis, Round
 
@@ -287,6 +290,7 @@ def diagnose(
     loo_draws: int = 400,
     signatures: bool = True,
     progress: Callable[[str], None] | None = None,
+    executor: Any = None,
 ) -> Diagnosis:
     """Show what the baseline gets wrong, name the causes, extend the model, measure the gain.
 
@@ -327,7 +331,16 @@ def diagnose(
     signatures : bool
         Compute the residual signatures of the baseline and the final model.
     progress : callable, optional
-        Called with one line of text per step (e.g. ``print``).
+        Called with one line of text per step (e.g. ``print``); given, each round's
+        screen and sampling also show a progress bar on stderr
+        (:func:`bayesbeam._util.progress_bar`: the stage, the model done last, tqdm's
+        time estimate).
+    executor : concurrent.futures.Executor, optional
+        Any object with the ``map`` method of :class:`concurrent.futures.Executor`
+        (``bayesbeam.jobs.executor.make_executor`` makes one: local processes or a Dask
+        cluster). Each round's candidate MAP searches, and its sampling runs, then run
+        in parallel; each job carries the trial's data, its model, starts and seed, so
+        the diagnosis is bitwise the serial one. None: everything in this process.
 
     Returns
     -------
@@ -374,7 +387,8 @@ def diagnose(
     rounds: list[Round] = []
     final_check: Round | None = None
     for k in range(1, max_rounds + 1):
-        rnd = _round(eng, cur, k, candidates, confirm_top, log)
+        rnd = _round(eng, cur, k, candidates, confirm_top, log, executor,
+                     show=progress is not None)
         if rnd.cause == "none":
             final_check = rnd
             break
@@ -397,15 +411,16 @@ def diagnose(
 
 
 def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
-           confirm_top: int, log: Callable[[str], None]) -> Round:
+           confirm_top: int, log: Callable[[str], None], executor: Any = None,
+           show: bool = False) -> Round:
     from bayesbeam.stats.criteria import CriteriaError, elpd_difference
 
     t_round = time.perf_counter()
     model = cur.problem.model
     scores: dict[str, dict[str, Any]] = {}
-    # 1. Screen.
+    # 1. Screen (the candidates' MAP searches are independent: through the executor).
+    screened: list[tuple[str, Any]] = []
     for cause in _valid_candidates(model, candidates):
-        t0 = time.perf_counter()
         ext = model.extend(cause)
         try:
             st = eng.state(ext)
@@ -414,11 +429,24 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
             eng.notes.append(f"candidate {cause} not tried: {err}")
             scores[cause] = {"model": ext.name, "gain": math.nan, "note": str(err)}
             continue
-        eng.optimise(st, eng.starts(st, cur.x))
-        scores[cause] = {"model": ext.name, "gain": st.ll - cur.ll, "note": "",
-                         "seconds": time.perf_counter() - t0}
-        log(f"  round {index} screen {cause}: Δχ²/2 = {st.ll - cur.ll:.2f} "
-            f"({time.perf_counter() - t0:.1f} s)")
+        scores[cause] = {"model": ext.name, "gain": math.nan, "note": ""}  # keeps the order
+        screened.append((cause, st))
+
+    bar = progress_bar(len(screened), f"diagnose round {index}: MAP screen", unit="model",
+                       enabled=show)
+
+    def screened_one(i: int, seconds: float) -> None:
+        cause, st = screened[i]
+        scores[cause].update(gain=st.ll - cur.ll, seconds=seconds)
+        log(f"  round {index} screen {cause}: Δχ²/2 = {st.ll - cur.ll:.2f} ({seconds:.1f} s)")
+        _progress_note(bar, f"{st.problem.model.name} done")
+        bar.update(1)
+
+    try:
+        eng.optimise_many([(st, eng.starts(st, cur.x)) for _, st in screened], executor,
+                          on_done=screened_one)
+    finally:
+        bar.close()
     passing = [c for c, s in scores.items() if s["gain"] > SCREEN_THRESHOLD]
     # A better optimum of the current model found from a candidate's MAP replaces its MAP.
     if passing:
@@ -446,6 +474,19 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
         best_gain = scores[ranked[0]]["gain"]
         chosen = [c for i, c in enumerate(ranked)
                   if i < confirm_top or scores[c]["gain"] > best_gain - SCREEN_TIE]
+        # The sampling runs are independent: through the executor (seeds in this order).
+        sampled = [cur] + [eng.states[scores[c]["model"]] for c in chosen]
+        bar = progress_bar(sum(st.score is None for st in sampled),
+                           f"diagnose round {index}: sampling", unit="model", enabled=show)
+
+        def sampled_one(st: _State) -> None:
+            _progress_note(bar, f"{st.problem.model.name} done")
+            bar.update(1)
+
+        try:
+            eng.confirm_many(sampled, executor, on_done=sampled_one)
+        finally:
+            bar.close()
         sc_cur = eng.confirm(cur)
         for c in chosen:
             st = eng.states[scores[c]["model"]]

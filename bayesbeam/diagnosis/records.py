@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from bayesbeam._util import finite_or_none
+from bayesbeam._util import finite_or_none, interval_digits
 
 __all__ = [
     "CandidateScore",
@@ -239,7 +239,8 @@ class Diagnosis:
             ``named_causes``, ``rounds`` (see :meth:`Round.to_json_dict`),
             ``final_model``, ``baseline``, ``verdict``, ``final_check``,
             ``thresholds``, ``signatures`` (before/after), ``final_posterior``
-            (:attr:`final_posterior`), ``notes``, ``seconds``.
+            (:attr:`final_posterior`), ``final_posterior_units`` (SI unit of each of its
+            entries), ``notes``, ``seconds``.
         """
         sig = {
             k: (None if s is None else s.to_json_dict())
@@ -256,6 +257,8 @@ class Diagnosis:
             "thresholds": dict(self.thresholds),
             "signatures": sig,
             "final_posterior": self.final_posterior,
+            "final_posterior_units": ({} if self.fits.get(self.final_model) is None
+                                      else self.fits[self.final_model].units()),
             "notes": list(self.notes),
             "seconds": finite_or_none(self.seconds),
         }
@@ -287,10 +290,8 @@ class Diagnosis:
                 f"90 % coverage {r.coverage_before:.2f} → {r.coverage_after:.2f}.{eq} "
                 f"Signature: {r.signature}"
             )
-            moves = [
-                f"{k} {v['before'][0]:.4g} ± {v['before'][1]:.2g} → {v['after'][0]:.4g} ± "
-                f"{v['after'][1]:.2g}" for k, v in r.parameter_moves.items()
-            ]
+            moves = [f"{k} {_pm(*v['before'])} → {_pm(*v['after'])}"
+                     for k, v in r.parameter_moves.items()]
             if moves:
                 lines.append("   Parameters moved: " + "; ".join(moves) + ".")
             size = _size_text(r.parameter_moves)
@@ -332,8 +333,14 @@ def _size_text(moves: Mapping[str, Any]) -> str:
         if v is None or not all(math.isfinite(x) for x in v["after"]):
             continue
         mean, sd = v["after"]
-        out.append(f"{label} {factor * mean:.4g} ± {factor * sd:.2g} {unit}")
+        out.append(f"{label} {_pm(factor * mean, factor * sd)} {unit}")
     return "; ".join(out)
+
+
+def _pm(mean: float, sd: float) -> str:
+    """``mean ± sd`` with enough digits in the mean that its ±sd interval shows."""
+    d = interval_digits(mean, mean - sd, mean + sd, minimum=4)
+    return f"{mean:.{d}g} ± {sd:.2g}"
 
 
 def _nan_low(x: float) -> float:
@@ -382,6 +389,9 @@ def describe_signatures(sig: Any) -> list[str]:
             f"{1e3 * m['f1_hz_per_mm']:+.3g} mHz/mm; ζ1 data {d['zeta1_per_mm']:+.2e} ± "
             f"{d['zeta1_per_mm_se']:.1e} vs model {m['zeta1_per_mm']:+.2e} per mm (f1 falling "
             "with amplitude: softening; ζ1 rising: drag, falling: friction).")
+    change = getattr(sig, "state_change", None)
+    if change and change.get("found"):
+        out.append(f"In the record itself (no model): {change['reason']}.")
     out.append(f"Residual mean {sig.residual_mean:.3g} (z = {sig.residual_mean_z:.1f}); "
                f"{100 * sig.lowfreq_fraction:.1f} % of the residual power below f1/2.")
     return out

@@ -278,26 +278,104 @@ class _Engine:
                 rows.append([w[n] for n in names])
         return rows
 
+    # -- many models at once (an executor) ---------------------------------------------
+    def config(self) -> dict[str, Any]:
+        """Return what rebuilds this engine's problems elsewhere (plain, picklable data)."""
+        return {"seed": self.seed, "n_elements": self.n_elements, "initial": self.initial,
+                "priors": self.priors, "sampler": self.sampler}
+
+    def optimise_many(self, pairs: Sequence[tuple[_State, np.ndarray]], executor: Any,
+                      on_done: Callable[[int, float], None] | None = None) -> None:
+        """:meth:`optimise` several states from their starts, through ``executor``.
+
+        Each state's MAP search depends on its problem, its starts and its current MAP
+        only (no random numbers), so a worker that rebuilds the problem from
+        :meth:`config` finds bitwise the MAP this process would.
+
+        Parameters
+        ----------
+        pairs : sequence of (_State, ndarray)
+            States and their physical start points, shape (S, ndim).
+        executor : concurrent.futures.Executor or None
+            Anything with ``map``; None: one after another here.
+        on_done : callable, optional
+            ``on_done(index, seconds)`` in the order of ``pairs`` as each is done.
+        """
+        if executor is None or len(pairs) < 2:
+            for i, (st, starts) in enumerate(pairs):
+                t0 = time.perf_counter()
+                self.optimise(st, starts)
+                if on_done is not None:
+                    on_done(i, time.perf_counter() - t0)
+            return
+        jobs = [{"trial": self.trial, "engine": self.config(), "model": st.problem.model,
+                 "n_elements": st.problem.n_elements, "starts": starts, "u": st.u,
+                 "lp": st.lp} for st, starts in pairs]
+        for i, (u, lp, ll, seconds) in enumerate(executor.map(_optimise_job, jobs)):
+            st = pairs[i][0]
+            st.u, st.lp, st.ll = u, lp, ll
+            if on_done is not None:
+                on_done(i, seconds)
+
+    def confirm_many(self, states: Sequence[_State], executor: Any,
+                     on_done: Callable[[_State], None] | None = None) -> None:
+        """:meth:`confirm` several states (in this order), through ``executor``.
+
+        Seeds are handed out in the order given, as consecutive :meth:`confirm` calls
+        would, and notes and log lines follow that order: the result is the serial one.
+        ``on_done(state)`` is called as each state not yet sampled is, in that order.
+        """
+        todo: list[_State] = []
+        for st in states:  # once each (by identity: a state is a mutable record)
+            if st.score is None and not any(st is t for t in todo):
+                todo.append(st)
+        if executor is None or len(todo) < 2:
+            for st in todo:
+                self.confirm(st)
+                if on_done is not None:
+                    on_done(st)
+            return
+        jobs = []
+        for st in todo:
+            self._k += 1
+            jobs.append({"trial": self.trial, "engine": self.config(),
+                         "model": st.problem.model, "n_elements": st.problem.n_elements,
+                         "u": st.u, "seed": int(self.seed) * 1000 + self._k})
+        for st, (score, notes, seconds) in zip(todo, executor.map(_confirm_job, jobs),
+                                               strict=True):
+            self._scored(st, score, notes, seconds)
+            if on_done is not None:
+                on_done(st)
+
     # -- sampling and scoring ---------------------------------------------------------
     def confirm(self, st: _State) -> Any:
         """Sample from the MAP and score (bridge evidence, LOO); cached."""
         if st.score is not None:
             return st.score
-        from bayesbeam.comparison.scoring import evaluate
-
         t0 = time.perf_counter()
         self._k += 1
-        seed = int(self.seed) * 1000 + self._k
-        res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=self.notes)
-        st.score = evaluate(self.trial, st.problem.model, seed=seed, result=res,
-                            problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]))
-        for n in st.score.notes:
-            self.notes.append(f"{st.problem.model.name}: {n}")
-        st.seconds += time.perf_counter() - t0
-        self.log(f"  sampled {st.problem.model.name}: log Z = {st.score.log_evidence:.2f} ± "
-                 f"{st.score.log_evidence_err:.2f}, elpd = {st.score.loo.elpd_loo:.1f} "
-                 f"({time.perf_counter() - t0:.0f} s)")
+        notes: list[str] = []
+        score = self._sample_and_score(st, int(self.seed) * 1000 + self._k, notes)
+        self._scored(st, score, notes, time.perf_counter() - t0)
         return st.score
+
+    def _sample_and_score(self, st: _State, seed: int, notes: list[str]) -> Any:
+        from bayesbeam.comparison.scoring import evaluate
+
+        res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes)
+        return evaluate(self.trial, st.problem.model, seed=seed, result=res,
+                        problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]))
+
+    def _scored(self, st: _State, score: Any, notes: Sequence[str], seconds: float) -> None:
+        """Record a state's score: its notes (sampler's, then the score's), time, log line."""
+        st.score = score
+        self.notes.extend(notes)
+        for n in score.notes:
+            self.notes.append(f"{st.problem.model.name}: {n}")
+        st.seconds += seconds
+        self.log(f"  sampled {st.problem.model.name}: log Z = {score.log_evidence:.2f} ± "
+                 f"{score.log_evidence_err:.2f}, elpd = {score.loo.elpd_loo:.1f} "
+                 f"({seconds:.0f} s)")
 
     def signatures(self, st: _State) -> Any:
         if st.sig is None:
@@ -305,6 +383,74 @@ class _Engine:
 
             st.sig = compute_signatures(st.problem, self.confirm(st).result, seed=self.seed)
         return st.sig
+
+
+def _worker_state(job: Mapping[str, Any]) -> tuple[_Engine, _State]:
+    """Rebuild, in a worker, the engine and the state of one model (see ``_Engine.config``)."""
+    cfg = dict(job["engine"])
+    cfg["n_elements"] = int(job["n_elements"])  # the state's own mesh
+    eng = _Engine(job["trial"], notes=[], log=_silent, **cfg)
+    st = eng.state(job["model"])
+    st.u = None if job["u"] is None else np.array(job["u"], dtype=float)
+    return eng, st
+
+
+def _silent(line: str) -> None:
+    """Log of a worker's engine: its lines are the caller's to write."""
+
+
+def _optimise_job(job: Mapping[str, Any]) -> tuple[np.ndarray | None, float, float, float]:
+    """Improve one model's MAP from its starts (an executor job of :meth:`_Engine.optimise_many`).
+
+    Parameters
+    ----------
+    job : mapping
+        ``trial`` (the Trial itself), ``engine`` (:meth:`_Engine.config`), ``model``,
+        ``n_elements``, ``starts`` (physical start points, shape (S, ndim)), ``u`` and
+        ``lp`` (the current MAP in sampling space and its log posterior, or None, -inf).
+
+    Returns
+    -------
+    u : ndarray, shape (ndim,)
+    lp, ll : float
+        Log posterior and log-likelihood at ``u``.
+    seconds : float
+        Wall-clock time of the search.
+    """
+    from bayesbeam.comparison.compare import _job_guard
+
+    t0 = time.perf_counter()
+    with _job_guard():
+        eng, st = _worker_state(job)
+        st.lp = float(job["lp"])
+        eng.optimise(st, job["starts"])
+    return st.u, st.lp, st.ll, time.perf_counter() - t0
+
+
+def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:
+    """Sample one model from its MAP and score it (an executor job of ``confirm_many``).
+
+    Parameters
+    ----------
+    job : mapping
+        ``trial``, ``engine``, ``model``, ``n_elements``, ``u`` (the MAP) and ``seed``.
+
+    Returns
+    -------
+    score : bayesbeam.comparison.scoring.ModelScore
+        Pickles back from a worker (its FitResult's ``__reduce__``).
+    notes : list of str
+        The sampler's notes (e.g. not converged).
+    seconds : float
+    """
+    from bayesbeam.comparison.compare import _job_guard
+
+    t0 = time.perf_counter()
+    notes: list[str] = []
+    with _job_guard():
+        eng, st = _worker_state(job)
+        score = eng._sample_and_score(st, int(job["seed"]), notes)
+    return score, notes, time.perf_counter() - t0
 
 
 def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,

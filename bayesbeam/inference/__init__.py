@@ -39,7 +39,6 @@ _EXPORTS = {
     "ResultError": ".results",
     "SamplerCoordinates": ".fit",
     "scan_E": ".fit",
-    "thin_result": ".fit",
     "walker_count": ".settings",
 }
 

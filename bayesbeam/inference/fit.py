@@ -53,7 +53,6 @@ __all__ = [
     "walker_scale",
     "profile_linear",
     "scan_E",
-    "thin_result",
 ]
 
 
@@ -392,29 +391,6 @@ def find_map(
     return best_u, best_v
 
 
-def thin_result(result: FitResult, max_draws: int) -> FitResult:
-    """Keep at most ``max_draws`` draws (evenly spaced steps, all walkers).
-
-    Parameters
-    ----------
-    result : FitResult
-    max_draws : int
-        Upper bound on steps × walkers.
-
-    Returns
-    -------
-    FitResult
-    """
-    c = result.chain
-    step = max(1, int(np.ceil(c.nsteps * c.nwalkers / max_draws)))
-    if step == 1:
-        return result
-    sel = slice(c.nsteps - 1 - ((c.nsteps - 1) // step) * step, None, step)
-    chain = dataclasses.replace(c, samples=c.samples[sel], log_prob=c.log_prob[sel])
-    derived = {k: v[sel] for k, v in result.derived.items()}
-    return dataclasses.replace(result, chain=chain, derived=derived)
-
-
 class SamplerCoordinates:
     """Coordinates the ensemble moves in: the damping laws' total and split.
 
@@ -612,6 +588,7 @@ def fit(
         names=problem.names,
         moves=de_moves(),
         preburn=PREBURN_STEPS,
+        label=f"fit {problem.model.name}: emcee",
         **sampler_kw,
     )
     if not coords.identity:
@@ -664,6 +641,7 @@ def fit(
         provenance=provenance,
         derived=derived,
         mesh=mesh,
+        problem=problem,  # the complete ArviZ tree (log-likelihood, predictive) needs it
     )
     # Its own stream: the checks never change the chain's random numbers.
     if say is not None:

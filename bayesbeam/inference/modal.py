@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import finite_json, one_blas_thread
+from bayesbeam._util import finite_json, fmt_interval, one_blas_thread
 
 __all__ = [
     "DEFAULT_DRAWS",
@@ -374,9 +374,10 @@ class ModalPosterior:
                  f"{self.n_requested} draws): median [5 %, 95 %]"]
         for row in self.summary():
             f, z = row["frequency_hz"], row["damping_ratio"]
-            lines.append(f"  mode {row['mode']}: f = {f['q50']:.5g} Hz [{f['q05']:.5g}, "
-                         f"{f['q95']:.5g}], zeta = {z['q50']:.4g} [{z['q05']:.4g}, "
-                         f"{z['q95']:.4g}]")
+            fq = fmt_interval(f["q50"], f["q05"], f["q95"], minimum=4)
+            zq = fmt_interval(z["q50"], z["q05"], z["q95"])
+            lines.append(f"  mode {row['mode']}: f = {fq[0]} Hz [{fq[1]}, {fq[2]}], "
+                         f"zeta = {zq[0]} [{zq[1]}, {zq[2]}]")
         lines += [f"  note: {n}" for n in self.notes]
         return "\n".join(lines)
 

@@ -12,8 +12,10 @@ Statistica Sinica 6, 733-807).
 :func:`posterior_predictive` picks the draws from a :class:`~bayesbeam.inference.results.FitResult`
 (at random for the fit plots of :mod:`bayesbeam.report.plots`, evenly spaced along the
 chain for the coverage of :mod:`bayesbeam.diagnosis.signatures`);
-:func:`predictive_draws` simulates given sampling-space points (the ArviZ
-``posterior_predictive`` group written by ``bayesbeam fit``).
+:func:`predictive_draws` simulates given sampling-space points;
+:func:`predictive_group` and :func:`log_likelihood_group` make the ArviZ
+``posterior_predictive`` and ``log_likelihood`` groups of the complete tree of a fit
+(:meth:`bayesbeam.inference.results.FitResult.to_inference_data`).
 """
 
 from __future__ import annotations
@@ -25,18 +27,29 @@ import numpy as np
 from bayesbeam.stats.likelihood import stationary_ar1
 
 __all__ = [
+    "LOGLIK_DRAWS",
+    "MAX_VALUES",
     "PPC_DRAWS",
     "PRIOR_DRAWS",
     "PredictiveError",
+    "log_likelihood_group",
+    "loglik_draws",
     "posterior_predictive",
     "predictive_draws",
     "predictive_group",
+    "predictive_steps",
 ]
 
 #: Draws of the ArviZ ``posterior_predictive`` group (:func:`predictive_group`).
 PPC_DRAWS = 200
 #: Prior draws of the ArviZ ``prior`` group of a saved posterior file.
 PRIOR_DRAWS = 1000
+#: Posterior draws (at most) of a complete ArviZ tree: the pointwise log-likelihood is
+#: computed at these, and the tree's posterior holds the same draws (:func:`loglik_draws`).
+LOGLIK_DRAWS = 1000
+#: Upper bound on the stored (draws x samples) values of one observation group
+#: (25e6 float64 values, 200 MB), for long records.
+MAX_VALUES = 25_000_000
 
 #: How :func:`posterior_predictive` picks its draws from the flattened chain.
 _SELECTIONS = ("random", "spaced")
@@ -161,13 +174,57 @@ def posterior_predictive(
     return predictive_draws(problem, flat[idx], rng)
 
 
+def loglik_draws(n_obs: int, nwalkers: int) -> int:
+    """Return the number of draws of a complete ArviZ tree for ``n_obs`` samples.
+
+    :data:`LOGLIK_DRAWS`, fewer for records so long that the pointwise log-likelihood
+    would exceed :data:`MAX_VALUES` values, and never fewer than one step of every walker.
+
+    Parameters
+    ----------
+    n_obs : int
+        Samples in the record (T).
+    nwalkers : int
+        Walkers of the chain (the tree's chains).
+
+    Returns
+    -------
+    int
+        Upper bound on steps x walkers (for :meth:`~bayesbeam.inference.results.FitResult.thin`).
+    """
+    return max(int(nwalkers), min(LOGLIK_DRAWS, MAX_VALUES // max(1, int(n_obs))))
+
+
+def predictive_steps(nsteps: int, nwalkers: int, max_draws: int = PPC_DRAWS) -> np.ndarray:
+    """Return the steps of a chain that the posterior-predictive group simulates.
+
+    Evenly spaced over the chain, first and last included, all walkers each, with
+    steps x walkers at most ``max_draws`` (at least one step).
+
+    Parameters
+    ----------
+    nsteps, nwalkers : int
+        Shape of the chain's samples.
+    max_draws : int
+        Upper bound on steps x walkers.
+
+    Returns
+    -------
+    ndarray of int, shape (steps,)
+        Step indices into the chain (the ``draw`` coordinate of the group).
+    """
+    steps = max(1, min(nsteps, max_draws // nwalkers))
+    return np.linspace(0, nsteps - 1, steps).round().astype(int)
+
+
 def predictive_group(problem: Any, samples: np.ndarray, rng: np.random.Generator, *,
                      max_draws: int = PPC_DRAWS) -> np.ndarray:
     """Replicated data for an ArviZ ``posterior_predictive`` group (walkers as chains).
 
-    A few evenly spaced steps of every walker, so that the group shares the posterior's
-    chains; used by every output that writes a posterior file (``bayesbeam fit``,
-    :meth:`bayesbeam.comparison.scoring.ModelScore.save`).
+    The steps of :func:`predictive_steps` of every walker, so that the group shares the
+    posterior's chains and its draws are a subset of the posterior's (used by
+    :meth:`bayesbeam.inference.results.FitResult.to_inference_data`, the one home of a
+    complete tree).
 
     Parameters
     ----------
@@ -186,7 +243,29 @@ def predictive_group(problem: Any, samples: np.ndarray, rng: np.random.Generator
     """
     samples = np.asarray(samples, dtype=float)
     nsteps, nwalkers, ndim = samples.shape
-    steps = max(1, min(nsteps, max_draws // nwalkers))
-    pick = np.linspace(0, nsteps - 1, steps).round().astype(int)
+    pick = predictive_steps(nsteps, nwalkers, max_draws)
     _, _, y_rep = predictive_draws(problem, samples[pick].reshape(-1, ndim), rng)
-    return y_rep.reshape(steps, nwalkers, -1).swapaxes(0, 1)
+    return y_rep.reshape(pick.size, nwalkers, -1).swapaxes(0, 1)
+
+
+def log_likelihood_group(problem: Any, samples: np.ndarray) -> np.ndarray:
+    """Pointwise log-likelihood for an ArviZ ``log_likelihood`` group (walkers as chains).
+
+    :meth:`~bayesbeam.inference.problem.Problem.log_likelihood_pointwise` (the one home
+    of the pointwise terms, batched there) at every draw, in ArviZ's axis order.
+
+    Parameters
+    ----------
+    problem : bayesbeam.inference.problem.Problem
+    samples : ndarray, shape (nsteps, nwalkers, ndim)
+        Sampling-space draws.
+
+    Returns
+    -------
+    ndarray, shape (nwalkers, nsteps, T)
+        Log densities in nats (AR(1) noise: conditional on the previous sample).
+    """
+    samples = np.asarray(samples, dtype=float)
+    nsteps, nwalkers, ndim = samples.shape
+    ll = problem.log_likelihood_pointwise(samples.reshape(-1, ndim))
+    return ll.reshape(nsteps, nwalkers, -1).swapaxes(0, 1)

@@ -43,14 +43,20 @@ from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.stats.families import LogUniform, Normal, Prior, PriorError, Uniform
 from bayesbeam.stats.likelihood import ar1_loglik, ar1_pointwise, iid_loglik, iid_pointwise
 from bayesbeam.stats.priors import PriorSet
-from bayesbeam.trials.trial import Trial
+from bayesbeam.trials.trial import _SI_UNIT, Trial
 
 __all__ = [
-    "BETA1", "Problem", "default_priors", "first_frequency", "record_f1", "reference_modulus",
+    "BETA1", "POINTWISE_BATCH", "Problem", "default_priors", "first_frequency", "record_f1",
+    "reference_modulus",
 ]
 
 #: First root of 1 + cos βL cosh βL = 0 (physics.md §4).
 BETA1 = 1.875104069
+
+#: Points per forward-model run of :meth:`Problem.log_likelihood_pointwise` (bounds the
+#: forward model's working memory to a few POINTWISE_BATCH x T arrays for any number of
+#: draws).
+POINTWISE_BATCH = 256
 
 #: Range of first-mode damping ratios the default damping priors span.
 ZETA_RANGE = (1e-6, 0.2)
@@ -559,22 +565,42 @@ class Problem:
     def log_likelihood_pointwise(self, U: np.ndarray) -> np.ndarray:
         """Pointwise log likelihood, shape (k, T) (AR(1): conditional on the previous sample).
 
+        The one home of the pointwise terms of every output (the ArviZ ``log_likelihood``
+        group of :meth:`bayesbeam.inference.results.FitResult.to_inference_data`, LOO and
+        WAIC of :func:`bayesbeam.comparison.scoring.evaluate`). The forward model runs on
+        at most :data:`POINTWISE_BATCH` points at a time, so thousands of draws need
+        memory for the (k, T) output only. Each row sums to :meth:`log_likelihood` of
+        its point (the same residuals; only the order of the summation differs).
+        Evaluations are not counted in :attr:`n_calls`.
+
         Parameters
         ----------
         U : ndarray, shape (k, ndim)
+            Points in the sampling space.
 
         Returns
         -------
         ndarray, shape (k, T)
+            Log densities in nats; ``-inf`` rows for points with an invalid model.
         """
-        U = np.atleast_2d(U)
-        X = self.theta(U)
-        res = self.predict(X)
+        U = np.atleast_2d(np.asarray(U, dtype=float))
         out = np.full((U.shape[0], self.data.size), -np.inf)
-        v = res.valid
-        if np.any(v):
-            out[v] = self._pointwise(X[v], v[v], res.y[v])
+        for i in range(0, U.shape[0], POINTWISE_BATCH):
+            X = self.theta(U[i : i + POINTWISE_BATCH])
+            res = self.predict(X)
+            v = res.valid
+            if np.any(v):
+                out[i : i + POINTWISE_BATCH][v] = self._pointwise(X[v], v[v], res.y[v])
         return out
+
+    @property
+    def signal_unit(self) -> str:
+        """SI unit of the trial's measured quantity: ``"m"``, ``"m/s"`` or ``"m/s^2"``.
+
+        The unit of the data, of the model signal and of ``sigma`` and ``offset``
+        (:func:`bayesbeam.physics.models.parameter_units`).
+        """
+        return _SI_UNIT[self.trial.quantity]
 
     def log_prob(self, U: np.ndarray) -> np.ndarray:
         """Unnormalised log posterior in the sampling space, shape (k,).

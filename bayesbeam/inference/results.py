@@ -11,13 +11,24 @@ ArviZ 1.x; walkers are the ``chain`` dimension, steps the ``draw`` dimension):
 ``posterior``                physical parameter values (SI units)
 ``unconstrained_posterior``  the same draws in the sampling space ``u``
 ``sample_stats``             ``lp``: log posterior density in ``u`` (Jacobian included)
-``log_likelihood``           pointwise log-likelihood ``(chain, draw, obs)``, if given
-``posterior_predictive``     simulated signals ``(chain, draw', obs)``, if given
-``observed_data``            the measured signal, if given
-``prior``                    prior draws in physical units, if asked
+``log_likelihood``           pointwise log-likelihood ``(chain, draw, time)``, nats
+``posterior_predictive``     replicated signals ``(chain, draw', time)`` at a subset
+                             ``draw'`` of the posterior's draws (its ``draw`` labels)
+``observed_data``            the measured signal on its ``time`` coordinate (s)
+``prior``                    prior draws in physical units
 root attributes              JSON strings: ``priors``, ``settings``, ``provenance``,
                              ``chain`` (diagnostics), ``map_u``, ``mesh``,
-                             ``adequacy``; plain ``model``
+                             ``adequacy``; plain ``model`` and ``signal_unit``
+
+A result that knows the problem it was fitted to (:attr:`FitResult.problem`, see
+:meth:`FitResult.with_problem`) writes the complete tree: every group above, at the
+draws of :meth:`FitResult.thin` to :func:`~bayesbeam.inference.predictive.loglik_draws`
+(at most 1000; posterior, sample_stats and log_likelihood hold the same draws, so that
+``arviz.loo`` and ``arviz.compare`` work on it); without one, the groups it is given.
+Every variable carries ``units`` (SI, ``"1"`` for a pure number, ``"nat"`` for log
+densities; :data:`bayesbeam.physics.models.PARAMETER_UNITS`) and ``long_name``
+attributes, and the ``time`` coordinate its unit ``"s"``: they are NetCDF attributes and
+survive :meth:`FitResult.save` and :meth:`FitResult.load`.
 
 :meth:`FitResult.save` writes that tree to ``posterior.nc`` (h5netcdf engine) and
 the summary to ``summary.json``; :meth:`FitResult.load` reads ``posterior.nc`` back.
@@ -27,6 +38,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import datetime as _dt
 import io
 import json
@@ -44,15 +56,19 @@ from bayesbeam._util import (
     atomic_path,
     distribution_version,
     finite_json,
+    interval_digits,
     json_default,
     write_text_atomic,
 )
+from bayesbeam.physics.models import SIGNAL, parameter_units
 from bayesbeam.stats.priors import PriorSet
 from bayesbeam.stats.sampling import Chain
 
 __all__ = ["FitResult", "ResultError", "make_provenance"]
 
 _QUANTILES = {"q05": 0.05, "q50": 0.5, "q95": 0.95}
+#: ``units`` of log densities: natural logarithms of densities.
+_NAT = "nat"
 
 
 class ResultError(ValueError):
@@ -154,6 +170,15 @@ class FitResult:
         Whether the model reproduces the data to its noise
         (:func:`bayesbeam.inference.adequacy.assess`): ``ok``, ``reasons``, figures;
         empty when not assessed.
+    signal_unit : str or None
+        SI unit of the fitted signal (``"m"``, ``"m/s"`` or ``"m/s^2"``): the unit of the
+        data, of ``sigma`` and ``offset``; taken from :attr:`problem` when one is given,
+        kept in the saved tree.
+    problem : bayesbeam.inference.problem.Problem or None
+        The problem that was fitted (trial, model, priors, final mesh), with which
+        :meth:`to_inference_data` makes the complete tree; not saved (a loaded result
+        gets one again with :meth:`with_problem`). Its parameters and priors must be
+        the result's.
     """
 
     model: str
@@ -165,10 +190,21 @@ class FitResult:
     derived: Mapping[str, np.ndarray] = field(default_factory=dict)
     mesh: Mapping[str, Any] = field(default_factory=dict)
     adequacy: Mapping[str, Any] = field(default_factory=dict)
+    signal_unit: str | None = None
+    problem: Any = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.priors, PriorSet):
             object.__setattr__(self, "priors", PriorSet(self.priors))
+        if self.problem is not None:
+            pb = self.problem
+            if tuple(pb.names) != tuple(self.priors.names) or pb.priors != self.priors:
+                raise ResultError(
+                    f"the problem's parameters {list(pb.names)} or priors are not the "
+                    f"result's ({list(self.priors.names)}); pass the problem that was fitted"
+                )
+            if self.signal_unit is None:
+                object.__setattr__(self, "signal_unit", pb.signal_unit)
         if tuple(self.priors.names) != tuple(self.chain.names):
             raise ResultError(
                 f"chain parameters {list(self.chain.names)} do not match the priors' "
@@ -195,6 +231,18 @@ class FitResult:
             a.setflags(write=False)
             derived[name] = a
         object.__setattr__(self, "derived", _frozen_mapping(derived))
+
+    def __reduce__(self) -> tuple[Any, tuple[dict[str, Any]]]:
+        """Pickle as plain constructor arguments (the read-only mapping proxies cannot be).
+
+        A result then travels to and from executor workers (processes, Dask) and is
+        rebuilt, checks included, by its own constructor: the same arrays and numbers.
+        """
+        fields = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            fields[f.name] = dict(v) if isinstance(v, MappingProxyType) else v
+        return _rebuild, (fields,)
 
     # -- derived values --------------------------------------------------------------
     @property
@@ -268,6 +316,19 @@ class FitResult:
             "rhat": dict(zip(self.names, map(float, c.rhat), strict=True)),
         }
 
+    def units(self) -> dict[str, str]:
+        """SI unit of every entry of :meth:`summary` (``"1"`` for a pure number).
+
+        Returns
+        -------
+        dict of str to str
+            From :data:`bayesbeam.physics.models.PARAMETER_UNITS`; ``sigma`` and
+            ``offset`` take the trial's signal unit (``""`` when it is not known).
+        """
+        sig = self.signal_unit or None
+        units = {name: parameter_units(name, sig, default=("", ""))[0] for name in self.summary()}
+        return {name: ("" if u == SIGNAL else u) for name, u in units.items()}
+
     def to_json_dict(self) -> dict[str, Any]:
         """Summary record for ``summary.json`` and ``bayesbeam fit --json``.
 
@@ -276,7 +337,8 @@ class FitResult:
         dict
             Keys ``model``, ``posterior`` (see :meth:`summary`), ``ess_min``,
             ``tau_max``, ``rhat_max``, ``converged``, ``seconds``, plus
-            ``diagnostics``, ``map`` (physical, or ``None``), ``mesh``, ``adequacy``,
+            ``diagnostics``, ``map`` (physical, or ``None``), ``units`` (of every
+            ``posterior`` entry, SI; :meth:`units`), ``mesh``, ``adequacy``,
             ``priors``, ``settings`` and ``provenance``. Non-finite numbers (e.g. ``tau`` of a
             run too short to estimate it) become ``None`` so the record is strict JSON.
         """
@@ -293,6 +355,7 @@ class FitResult:
                 "seconds": d["seconds"],
                 "diagnostics": d,
                 "map": None if mt is None else dict(zip(self.names, map(float, mt), strict=True)),
+                "units": self.units(),
                 "mesh": _plain(self.mesh),
                 "adequacy": _plain(self.adequacy),
                 "priors": self.priors.to_dict(),
@@ -322,12 +385,75 @@ class FitResult:
                 if j < c.ndim
                 else "   (derived)"
             )
-            lines.append(f"{name:<{width}} " + " ".join(f"{row[k]:>11.4g}" for k in cols) + diag)
+            # Enough digits that the interval's ends print apart (not 5.236e+10 four times).
+            d = interval_digits(row["q50"], row["q05"], row["q95"], minimum=4)
+            cells = [f"{row[k]:#.{d}g}" if k != "sd" else f"{row[k]:.3g}" for k in cols]
+            lines.append(f"{name:<{width}} " + " ".join(f"{x:>11}" for x in cells) + diag)
         if self.mesh:
             lines.append(f"mesh: {self.mesh.get('summary', '')}")
         if self.adequacy:
             lines.append(f"adequacy: {self.adequacy.get('summary', '')}")
         return "\n".join(lines)
+
+    def with_problem(self, problem: Any) -> FitResult:
+        """Return the result with the problem it was fitted to (for the complete tree).
+
+        Parameters
+        ----------
+        problem : bayesbeam.inference.problem.Problem or bayesbeam.trials.trial.Trial
+            The fitted problem, or the trial it was fitted to: the problem is then
+            rebuilt from the result's model, priors, ``settings["n_elements"]`` (the
+            fit's final mesh) and ``settings["initial"]``.
+
+        Returns
+        -------
+        FitResult
+            A copy with :attr:`problem` and :attr:`signal_unit` set.
+
+        Raises
+        ------
+        ResultError
+            If the problem's parameters or priors are not the result's, or a trial is
+            given to a result whose settings lack ``n_elements``.
+        """
+        from bayesbeam.trials.trial import Trial
+
+        if isinstance(problem, Trial):
+            from bayesbeam.inference.problem import Problem
+
+            if "n_elements" not in self.settings:
+                raise ResultError("the result's settings lack n_elements: pass the fitted "
+                                  "Problem instead of the trial")
+            problem = Problem(problem, self.model, self.priors,
+                              n_elements=int(self.settings["n_elements"]),
+                              initial=str(self.settings.get("initial", "release")))
+        return dataclasses.replace(self, problem=problem, signal_unit=problem.signal_unit)
+
+    def thin(self, max_draws: int) -> FitResult:
+        """Keep at most ``max_draws`` draws: evenly spaced steps (the last included), all walkers.
+
+        Parameters
+        ----------
+        max_draws : int
+            Upper bound on steps × walkers; at least one step (all walkers) is kept.
+
+        Returns
+        -------
+        FitResult
+            ``self`` when nothing is dropped; otherwise a copy with every ``k``-th step
+            of the chain and of :attr:`derived`, ``k = ceil(nsteps / (max_draws //
+            nwalkers))``, counted back from the last step (diagnostics, MAP and problem
+            unchanged).
+        """
+        c = self.chain
+        keep = max(1, int(max_draws) // c.nwalkers)
+        step = -(-c.nsteps // keep)  # ceil: at most `keep` steps remain
+        if step == 1:
+            return self
+        sel = slice((c.nsteps - 1) % step, None, step)
+        chain = dataclasses.replace(c, samples=c.samples[sel], log_prob=c.log_prob[sel])
+        derived = {k: v[sel] for k, v in self.derived.items()}
+        return dataclasses.replace(self, chain=chain, derived=derived)
 
     # -- ArviZ -----------------------------------------------------------------------
     def to_inference_data(
@@ -341,8 +467,19 @@ class FitResult:
         obs_coords: Any = None,
         var_name: str = "y",
         prior_seed: int | None = None,
+        rng: np.random.Generator | None = None,
     ):
         """Build an ArviZ ``DataTree`` (layout in the module docstring).
+
+        With :attr:`problem` set, every group that is not given is made from it: the
+        result is thinned to :func:`~bayesbeam.inference.predictive.loglik_draws` draws
+        (unless ``log_likelihood`` is given, which must then match this result's
+        draws), the pointwise log-likelihood is computed at every kept draw
+        (:func:`~bayesbeam.inference.predictive.log_likelihood_group`), replicated data
+        at a subset of them (:func:`~bayesbeam.inference.predictive.predictive_group`),
+        the observed data on the trial's time axis (s) and
+        :data:`~bayesbeam.inference.predictive.PRIOR_DRAWS` prior draws. Without a
+        problem, only the groups given are added.
 
         Parameters
         ----------
@@ -350,31 +487,90 @@ class FitResult:
             Simulated observations, shape ``(nwalkers, ndraws, N)`` (``ndraws`` may
             be a subset of the steps); a mapping gives several variables.
         log_likelihood : array_like or mapping, optional
-            Pointwise log-likelihood, shape ``(nwalkers, nsteps, N)`` matching the
-            posterior draws (needed by ``arviz.loo``).
+            Pointwise log-likelihood in nats, shape ``(nwalkers, nsteps, N)`` matching
+            the posterior draws (needed by ``arviz.loo``).
         observed : array_like or mapping, optional
-            Measured signal, shape ``(N,)``.
+            Measured signal, shape ``(N,)``, SI units of the trial's quantity.
         prior_samples : int or array_like, optional
             Number of prior draws to make from :attr:`priors`, or prior draws in
             physical units, shape ``(n, ndim)``.
         obs_dim : str, default "time"
             Dimension name of the observation axis.
         obs_coords : array_like, optional
-            Coordinate values of the observation axis (e.g. sample times in s).
+            Coordinate values of the observation axis (sample times in s).
         var_name : str, default "y"
             Variable name for array (non-mapping) inputs.
         prior_seed : int, optional
             Seed for drawing ``prior_samples`` (default: the chain's seed).
+        rng : numpy.random.Generator, optional
+            Source of the noise of the posterior-predictive draws made from
+            :attr:`problem` (default: seeded by the chain's seed, so that a result
+            gives the same tree every time).
 
         Returns
         -------
         xarray.DataTree
+            Every variable with ``units`` and ``long_name`` attributes where its unit is
+            known (a parameter of :data:`~bayesbeam.physics.models.PARAMETER_UNITS`;
+            the signal's unit from :attr:`signal_unit`).
 
         Raises
         ------
         ResultError
             If array shapes do not match the chain or each other.
         """
+        pb = self.problem
+        if pb is None:
+            return self._tree(posterior_predictive, log_likelihood, observed, prior_samples,
+                              obs_dim=obs_dim, obs_coords=obs_coords, var_name=var_name,
+                              prior_seed=prior_seed)
+        from bayesbeam.inference.predictive import (
+            PPC_DRAWS,
+            PRIOR_DRAWS,
+            log_likelihood_group,
+            loglik_draws,
+            predictive_group,
+            predictive_steps,
+        )
+
+        res = self
+        if log_likelihood is None:
+            res = self.thin(loglik_draws(pb.data.size, self.chain.nwalkers))
+            log_likelihood = log_likelihood_group(pb, res.chain.samples)
+        c = res.chain
+        ppc_draws = None
+        if posterior_predictive is None:
+            if rng is None:
+                rng = np.random.default_rng(np.random.SeedSequence([int(c.seed), 2]))
+            posterior_predictive = predictive_group(pb, c.samples, rng, max_draws=PPC_DRAWS)
+            ppc_draws = predictive_steps(c.nsteps, c.nwalkers, PPC_DRAWS)
+        if observed is None:
+            observed = np.asarray(pb.data, dtype=float)
+            if obs_coords is None:
+                obs_coords = np.asarray(pb.trial.times, dtype=float)
+        tree = res._tree(posterior_predictive, log_likelihood, observed,
+                         PRIOR_DRAWS if prior_samples is None else prior_samples,
+                         obs_dim=obs_dim, obs_coords=obs_coords, var_name=var_name,
+                         prior_seed=prior_seed)
+        if ppc_draws is not None:
+            # Label the replicated draws with the posterior draws they were made from.
+            node = tree["posterior_predictive"]
+            node.dataset = node.to_dataset(inherit=False).assign_coords(draw=ppc_draws)
+        return tree
+
+    def _tree(
+        self,
+        posterior_predictive: Any,
+        log_likelihood: Any,
+        observed: Any,
+        prior_samples: int | np.ndarray | None,
+        *,
+        obs_dim: str,
+        obs_coords: Any,
+        var_name: str,
+        prior_seed: int | None,
+    ):
+        """Build the tree from the given groups (:meth:`to_inference_data` without a problem)."""
         import arviz  # deferred: importing ArviZ takes ~2 s
 
         c = self.chain
@@ -451,16 +647,49 @@ class FitResult:
                 "adequacy": _dumps(_plain(self.adequacy)),
             }
         }
+        if self.signal_unit is not None:
+            attrs["/"]["signal_unit"] = self.signal_unit
         # check_conventions=False: ArviZ warns when a group has more chains than draws,
         # which is normal here (e.g. 32 walkers, 10 posterior-predictive draws); the
         # dims are named explicitly, so the heuristic has nothing to catch.
-        return arviz.from_dict(
+        tree = arviz.from_dict(
             groups,
             dims=dims or None,
             coords=coords or None,
             attrs=attrs,
             check_conventions=False,
         )
+        for key in groups:
+            node = tree[key]
+            ds = node.to_dataset(inherit=False)
+            ds = ds.assign({v: ds[v].assign_attrs(self._variable_attrs(key, str(v)))
+                            for v in ds.data_vars})
+            if obs_dim in ds.coords:
+                ds = ds.assign_coords({obs_dim: ds[obs_dim].assign_attrs(
+                    units="s" if obs_dim == "time" else "1",
+                    long_name="time of the sample" if obs_dim == "time" else "sample index")})
+            node.dataset = ds
+        return tree
+
+    def _variable_attrs(self, group: str, name: str) -> dict[str, str]:
+        """``units`` and ``long_name`` of one variable of the tree (empty if unknown)."""
+        sig = self.signal_unit
+        if group == "log_likelihood":
+            return {"units": _NAT, "long_name": "pointwise log-likelihood"
+                    + (" (conditional on the previous sample)" if "rho" in self.names else "")}
+        if group == "sample_stats":
+            return {"units": _NAT, "long_name": "log posterior density in the sampling space u "
+                    "(unnormalised, Jacobian included)"} if name == "lp" else {}
+        if group in ("posterior_predictive", "observed_data"):
+            what = ("replicated signal: model plus a draw of the fitted noise"
+                    if group == "posterior_predictive" else "measured signal")
+            return {"long_name": what} if sig is None else {"units": sig, "long_name": what}
+        unit, meaning = parameter_units(name, sig, default=("", ""))
+        if group == "unconstrained_posterior" and unit not in ("", SIGNAL):
+            unit, meaning = _sampling_space_attrs(self.priors[name], name, unit)
+        if unit in ("", SIGNAL):
+            return {"long_name": meaning} if meaning else {}
+        return {"units": unit, "long_name": meaning}
 
     # -- files -----------------------------------------------------------------------
     def save(
@@ -570,6 +799,7 @@ class FitResult:
             # Results written before these checks existed have neither attribute.
             mesh=json.loads(a["mesh"]) if "mesh" in a else {},
             adequacy=json.loads(a["adequacy"]) if "adequacy" in a else {},
+            signal_unit=str(a["signal_unit"]) if "signal_unit" in a else None,
         )
 
     @classmethod
@@ -672,6 +902,26 @@ class FitResult:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=dpi)
         return path
+
+
+def _rebuild(fields: dict[str, Any]) -> FitResult:
+    """Unpickle a :class:`FitResult` (see :meth:`FitResult.__reduce__`)."""
+    return FitResult(**fields)
+
+
+def _sampling_space_attrs(prior: Any, name: str, unit: str) -> tuple[str, str]:
+    """Return the unit and meaning of a parameter in the sampling space ``u`` of its prior.
+
+    Log-space families sample ``u = ln(x / 1 unit)`` and a logit-Uniform the log-odds of
+    the position in its range (both pure numbers); the identity transforms keep ``x``.
+    """
+    from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform, Uniform
+
+    if isinstance(prior, (LogUniform, LogNormal, HalfNormal)):
+        return "1", f"ln({name} / 1 {unit}): {name} in the sampling space u"
+    if isinstance(prior, Uniform) and prior.transform == "logit":
+        return "1", f"log-odds of {name} in its prior's range: {name} in the sampling space u"
+    return unit, f"{name} in the sampling space u (identity transform)"
 
 
 def _chain_meta(c: Chain) -> dict[str, Any]:

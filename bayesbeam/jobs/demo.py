@@ -1,8 +1,9 @@
 """The main job: the source study's replication on the shipped data, in a few minutes.
 
 ``bayesbeam demo`` (:func:`run_demo`) fits three damping models (``viscous``,
-``viscous+kv``, ``viscous+sh``) to every trial in ``data/`` (three carbon-fibre beams,
-five release tests each; see ``data/README.md``), ranks them per trial by log evidence
+``viscous+kv``, ``viscous+sh``) to every shipped example trial (``data/`` in the
+repository, ``bayesbeam/examples`` when installed; three carbon-fibre beams, five release
+tests each; see ``data/README.md``), ranks them per trial by log evidence
 (:func:`bayesbeam.comparison.compare.compare_scores`), diagnoses what the models get wrong on one
 trial (:func:`bayesbeam.diagnosis.diagnose.diagnose`), prints a summary table per beam and model
 and writes a self-contained HTML report (:func:`bayesbeam.report.html.write_report`).
@@ -37,6 +38,7 @@ import platform
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -67,8 +69,35 @@ __all__ = [
     "run_replication",
 ]
 
-#: The shipped trials: ``data/`` next to the package folder in a source checkout.
-DATA_DIR = Path(__file__).resolve().parents[2] / "data"  # the repo root, beside the package
+
+def _shipped_trials() -> Path:
+    """Return the folder of the example trials that ship with the package.
+
+    The trials live in the repository's top-level ``data/``. A wheel (``pip install
+    bayesbeam``, ``pip install .``) installs that folder as ``bayesbeam/examples``
+    (``[tool.setuptools.package-dir]`` in ``pyproject.toml``), found here through
+    :mod:`importlib.resources`, so the demo runs from any working directory. An editable
+    install (``pip install -e .``) and a bare source checkout leave the files at ``data/``
+    beside the package folder: setuptools' editable finder does not resolve a subpackage
+    mapped onto a folder without ``__init__.py``, and ``data/`` holds no Python.
+
+    Returns
+    -------
+    Path
+        ``bayesbeam/examples`` of an installed package when it is a folder on disk, else
+        ``data/`` of the source checkout (which :func:`find_data` checks).
+    """
+    installed = resources.files("bayesbeam").joinpath("examples")
+    # A package imported from a zip archive gives a Traversable, not a folder the trial
+    # reader can open; it then falls back to the checkout's data/ (and find_data says so).
+    if isinstance(installed, Path) and installed.is_dir():
+        return installed
+    return Path(__file__).resolve().parents[2] / "data"  # the repo root, beside the package
+
+
+#: The shipped trials: ``bayesbeam/examples`` in an installed wheel, ``data/`` in a source
+#: checkout or an editable install (:func:`_shipped_trials`).
+DATA_DIR = _shipped_trials()
 
 #: The source study's three damping models.
 MODELS: tuple[str, ...] = ("viscous", "viscous+kv", "viscous+sh")
@@ -126,11 +155,14 @@ def find_data(data_dir: str | Path | None = None) -> Path:
     Parameters
     ----------
     data_dir : path, optional
-        Use this folder instead of :data:`DATA_DIR`.
+        Use this folder instead of :data:`DATA_DIR` (the example trials installed with
+        the package; see :func:`_shipped_trials`).
 
     Returns
     -------
     Path
+        The folder, as given (default :data:`DATA_DIR`, an absolute path that does not
+        depend on the working directory).
 
     Raises
     ------
@@ -139,10 +171,13 @@ def find_data(data_dir: str | Path | None = None) -> Path:
     """
     d = Path(data_dir) if data_dir is not None else DATA_DIR
     if not d.is_dir() or not any(d.glob("beam*-trial*.toml")):
+        where = (
+            "pass --data DIR with a folder of trial files" if data_dir is not None else
+            "the example trials install with the package (bayesbeam/examples; data/ beside "
+            "the package in a source checkout): reinstall bayesbeam, or pass --data DIR"
+        )
         raise DemoError(
-            f"no shipped trials found: looked for beam*-trial*.toml in {d.resolve()}. The demo "
-            "runs from a source checkout (git clone ...; pip install -e .), where data/ sits "
-            "next to the bayesbeam package; or pass --data DIR"
+            f"no shipped trials found: looked for beam*-trial*.toml in {d.resolve()}; {where}"
         )
     return d
 
@@ -186,8 +221,9 @@ def run_diagnosis_task(spec: Mapping[str, Any]) -> tuple[dict[str, bytes], dict[
     Parameters
     ----------
     spec : mapping
-        ``trial_file``, ``seed`` and the keys of :data:`DIAGNOSIS_SETTINGS` except
-        ``trial``.
+        ``trial`` (the :class:`~bayesbeam.trials.trial.Trial` itself: its data travel
+        with the task, the worker reads no file), ``seed`` and the other keys of
+        :data:`DIAGNOSIS_SETTINGS`; ``trial_file`` and ``key`` are provenance only.
 
     Returns
     -------
@@ -199,13 +235,12 @@ def run_diagnosis_task(spec: Mapping[str, Any]) -> tuple[dict[str, bytes], dict[
     """
     import tempfile
 
+    from bayesbeam.comparison.compare import _job_guard
     from bayesbeam.diagnosis.diagnose import diagnose
-    from bayesbeam.jobs.tasks import _TASK_LOCK, _single_thread
-    from bayesbeam.trials.io import read_trial
 
     t0 = time.perf_counter()
-    with _TASK_LOCK, _single_thread():  # see bayesbeam.jobs.tasks.run_fit_task
-        trial = read_trial(spec["trial_file"])
+    with _job_guard():  # alone in its process, one BLAS thread (as every fit task)
+        trial = spec["trial"]
         d = diagnose(
             trial, spec["baseline"], seed=int(spec["seed"]), max_rounds=int(spec["max_rounds"]),
             candidates=tuple(spec["candidates"]), n_elements=int(spec["n_elements"]),
@@ -235,17 +270,28 @@ def run_diagnosis_task(spec: Mapping[str, Any]) -> tuple[dict[str, bytes], dict[
     return files, record, time.perf_counter() - t0
 
 
-def _diagnosis_spec(trial_file: Path, seed: int, settings: Mapping[str, Any]) -> dict[str, Any]:
+def _diagnosis_spec(trial_file: Path, seed: int, settings: Mapping[str, Any]
+                    ) -> tuple[dict[str, Any], Any]:
+    """Return the diagnosis task's JSON record (with its cache key) and its trial.
+
+    The trial is read here, by the caller, and travels with the task
+    (:func:`run_diagnosis_task` gets ``{**spec, "trial": trial}``): a worker of a
+    cluster, or one started in another folder, could not resolve ``trial_file`` (a
+    relative ``--data`` path). The key is the SHA-256 of the settings, the seed and the
+    SHA-256s of the data and the TOML, not of the path.
+    """
+    from bayesbeam.trials.io import read_trial
+
+    trial_file = Path(trial_file).resolve()
+    trial = read_trial(trial_file)
     spec = {k: v for k, v in settings.items() if k != "trial"}
     spec["candidates"] = list(spec["candidates"])
     spec.update({"trial_file": str(trial_file), "seed": int(seed)})
-    from bayesbeam.trials.io import read_trial
-
     key_src = {k: v for k, v in spec.items() if k != "trial_file"}
-    key_src["data_sha256"] = read_trial(trial_file).sha256
+    key_src["data_sha256"] = trial.sha256
     key_src["toml_sha256"] = file_sha256(trial_file)
     spec["key"] = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()
-    return spec
+    return spec, trial
 
 
 def _diagnosis_cached(folder: Path, key: str) -> dict[str, Any] | None:
@@ -268,16 +314,14 @@ def _write_files(folder: Path, files: Mapping[str, bytes], task: Mapping[str, An
 # --------------------------------------------------------------------------- overlay
 
 
-def _overlay(trial_file: Path, trial_dir: Path, models: Sequence[str], dpi: int) -> None:
+def _overlay(trial: Any, trial_dir: Path, models: Sequence[str], dpi: int) -> None:
     """``fits.png``: the data with every model's MAP signal, and their residuals."""
     import numpy as np
     from matplotlib.figure import Figure
 
     from bayesbeam.inference.problem import Problem
     from bayesbeam.inference.results import FitResult
-    from bayesbeam.trials.io import read_trial
 
-    trial = read_trial(trial_file)
     t, y = np.asarray(trial.times), np.asarray(trial.values)
     fig = Figure(figsize=(10, 6.4), layout="constrained")
     ax1, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=[1.3, 1])
@@ -398,7 +442,9 @@ def run_replication(
     force : bool
         Recompute cached results.
     progress : bool or callable
-        Progress lines (stderr, or a callable that receives them).
+        True: messages on stderr and a progress bar of the fits
+        (:func:`bayesbeam.jobs.executor.run_fits`); a callable receives the messages
+        and one line per finished fit; False: silent.
     run_id : str, optional
         Id of the command run, written into ``replication.json`` (``run_id``).
 
@@ -428,14 +474,14 @@ def run_replication(
         want = plots == "all" or (plots == "first" and first_of_beam[beam_of(f.stem)] == f)
         tasks += fit_tasks([f], models, seed=seed, settings={**base, "plots": want})
 
-    diag_spec = None
+    diag_spec = diag_trial = None
     if diagnosis:
         dset = {**DIAGNOSIS_SETTINGS, **(diagnosis if isinstance(diagnosis, Mapping) else {})}
         match = [f for f in files if f.stem == dset["trial"]]
         if not match:
             say(f"diagnosis skipped: its trial {dset['trial']} is not among the trials run")
         else:
-            diag_spec = _diagnosis_spec(match[0], seed, dset)
+            diag_spec, diag_trial = _diagnosis_spec(match[0], seed, dset)
     say(f"bayesbeam demo: {len(files)} trials x {len(models)} models = {len(tasks)} fits"
         + (f" + diagnosis of {Path(diag_spec['trial_file']).stem}" if diag_spec else "")
         + f"; executor: {scheduler or f'{jobs} local process(es)'}")
@@ -451,15 +497,15 @@ def run_replication(
             diag_record = None if force else _diagnosis_cached(diag_dir, diag_spec["key"])
             if diag_record is None and ex is not None:
                 # Submitted first: the longest task starts while the fits fill the other slots.
-                diag_future = ex.submit(run_diagnosis_task, diag_spec)
+                diag_future = ex.submit(run_diagnosis_task, {**diag_spec, "trial": diag_trial})
         outcomes = run_fits(tasks, outdir, executor=ex, jobs=jobs, force=force,
-                            progress=say if progress else False)
+                            progress=progress, stage="demo fits")
         if diag_spec is not None and diag_record is None:
             if diag_future is not None:
                 dfiles, diag_record, dsec = diag_future.result()
             else:
                 say("diagnosis: running (serial)...")
-                dfiles, diag_record, dsec = run_diagnosis_task(diag_spec)
+                dfiles, diag_record, dsec = run_diagnosis_task({**diag_spec, "trial": diag_trial})
             _write_files(diag_dir, dfiles, {"key": diag_spec["key"], "spec": diag_spec,
                                             "seconds": dsec})
             say(f"diagnosis of {diag_record.get('trial')}: named causes "
@@ -481,7 +527,7 @@ def run_replication(
         scores[tname] = {o.task.model: o.score for o in outs}
         if plots == "all" or (plots == "first"
                               and first_of_beam[beam_of(tname)].stem == tname):
-            _overlay(Path(outs[0].task.trial_file), outdir / tname, models,
+            _overlay(outs[0].task.trial, outdir / tname, models,
                      int(base.get("plot_dpi", 90)))
     t_comp = time.perf_counter()
 

@@ -17,10 +17,18 @@ the order), and each task runs with the BLAS thread pool limited to one thread
 the cores nor change the floating-point reduction order. The same tasks give bitwise
 the same numbers serially, in a process pool or on Dask.
 
-**Files travel with the result.** A worker writes a task's files into a temporary
-folder and returns their bytes; the caller writes them under ``outdir``. So a Dask
-cluster needs no shared file system, and a failed or interrupted run leaves no
-half-written result folder.
+**Data travel with the task, files with the result.** A task carries its trial (the
+:class:`~bayesbeam.trials.trial.Trial` read by the caller: arrays and metadata), never a
+path for the worker to open. A worker writes a task's files into a temporary folder and
+returns their bytes; the caller writes them under ``outdir``. So a Dask cluster needs no
+shared file system (nor the caller's working directory: relative paths are the
+caller's business), and a failed or interrupted run leaves no half-written result
+folder.
+
+**Progress.** :func:`run_fits` shows a ``tqdm`` bar on stderr
+(:func:`bayesbeam._util.progress_bar`: a bar on a terminal, a widget in Jupyter, a line
+at most every 30 s in a log file) with the stage, the last finished trial and model and
+tqdm's time estimate; a callable ``progress`` gets one line per finished task instead.
 
 **Cache.** Every task has a key: the SHA-256 of its trial (the data file's SHA-256 and
 the trial TOML's, which holds the beam description), model, settings and seed. Its
@@ -32,15 +40,18 @@ recomputed, never reused.
 Layout of one task's folder (``outdir/<trial name>/<model>/``):
 
 =========================  ===============================================================
-``task.json``              the task: trial file, SHA-256s, model, seed, settings, key
+``task.json``              the task: trial file (provenance), SHA-256s, model, seed,
+                           settings, key
 ``posterior.nc``           complete ArviZ tree of the LOO draws: posterior, pointwise
                            log-likelihood, posterior predictive, observed data, prior
                            (:meth:`bayesbeam.comparison.scoring.ModelScore.save`)
 ``summary.json``           posterior summary, diagnostics, priors, settings, provenance
-``score.json``             evidence ± error, Laplace, ELPD-LOO, WAIC, AIC, BIC, notes
+``score.json``             evidence ± error, Laplace, ELPD-LOO, WAIC, AIC, BIC, notes,
+                           posterior summary with ``units``, ``modes`` (f_k, ζ_k
+                           posteriors: :func:`bayesbeam.inference.modal.modal_posterior`)
 ``score.npz``              pointwise LOO/WAIC terms and Pareto k (to rebuild the ranking)
-``fit.png`` etc.           data vs posterior predictive, residual spectrum, corner plot
-                           (when the task asks for plots)
+``fit.png`` etc.           data vs posterior predictive, residual spectrum, corner plot,
+                           ``zeta_vs_f.png`` (when the task asks for plots)
 =========================  ===============================================================
 
 :func:`load_score` rebuilds a :class:`bayesbeam.comparison.scoring.ModelScore` from such a folder,
@@ -221,11 +232,12 @@ def _cached(task: FitTask, folder: Path) -> dict[str, Any] | None:
 
 
 def _print_progress(line: str) -> None:
+    """Write one progress line on stderr (the ``True`` sink of :func:`_progress_sink`)."""
     print(line, file=sys.stderr, flush=True)
 
 
 def _progress_sink(progress: bool | Callable[[str], None]) -> Callable[[str], None] | None:
-    """Where progress lines go: stderr (``True``), the callable itself, or nowhere (None)."""
+    """Where message lines go: stderr (``True``), the callable itself, or nowhere (None)."""
     if progress is True:
         return _print_progress
     if callable(progress):
@@ -233,16 +245,60 @@ def _progress_sink(progress: bool | Callable[[str], None]) -> Callable[[str], No
     return None
 
 
-def _progress_line(k: int, n: int, o: TaskOutcome, t_start: float) -> str:
+def _outcome_text(o: TaskOutcome) -> str:
+    """Return what one finished task reports: trial, model, evidence, ESS (in columns)."""
     sc = o.score
     lz, err = sc.get("log_evidence"), sc.get("log_evidence_err")
     ev = f"log Z {lz:.1f} ± {err:.2f}" if lz is not None and err is not None else "log Z n/a"
     ess = sc.get("diagnostics", {}).get("ess_min")
     ess_s = f"ESS min {ess:.0f}" if ess is not None else ""
     conv = "" if sc.get("converged", True) else " (not converged)"
-    how = "cached" if o.cached else f"{o.seconds:.1f} s"
-    return (f"[{k:>3}/{n}] {o.task.trial_name:<14} {o.task.model:<12} {ev:<24} {ess_s}{conv}"
-            f"  [{how}; {time.perf_counter() - t_start:.0f} s elapsed]")
+    return f"{o.task.trial_name:<14} {o.task.model:<12} {ev:<24} {ess_s}{conv}"
+
+
+def _how(o: TaskOutcome) -> str:
+    return "cached" if o.cached else f"{o.seconds:.1f} s"
+
+
+def _progress_line(k: int, n: int, o: TaskOutcome, t_start: float) -> str:
+    """Return the log line of the ``k``-th of ``n`` finished tasks (callable sinks)."""
+    return (f"[{k:>3}/{n}] {_outcome_text(o)}  [{_how(o)}; "
+            f"{time.perf_counter() - t_start:.0f} s elapsed]")
+
+
+class _Progress:
+    """Progress of :func:`run_fits`: a tqdm bar, or one line per task to a callable.
+
+    ``True``: a bar on stderr (:func:`bayesbeam._util.progress_bar`: a bar on a
+    terminal, a widget in Jupyter, a line at most every 30 s in a log) named after the
+    stage, with tqdm's time estimate and the last finished trial and model beside it. A
+    callable receives one line per finished task (a log of every result). ``False``:
+    nothing.
+    """
+
+    def __init__(self, progress: bool | Callable[[str], None], total: int, stage: str) -> None:
+        from bayesbeam._util import progress_bar
+
+        self.say = progress if callable(progress) else None
+        self.bar = progress_bar(total, stage, enabled=progress is True, unit="fit")
+        self.total = total
+        self.done = 0
+        self.t_start = time.perf_counter()
+
+    def note(self, text: str) -> None:
+        from bayesbeam.comparison.compare import _progress_note
+
+        _progress_note(self.bar, text)
+
+    def finished(self, o: TaskOutcome) -> None:
+        self.done += 1
+        if self.say is not None:
+            self.say(_progress_line(self.done, self.total, o, self.t_start))
+        self.note(" ".join(_outcome_text(o).split()) + f" [{_how(o)}]")
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 def run_fits(
@@ -254,6 +310,7 @@ def run_fits(
     executor: cf.Executor | None = None,
     force: bool = False,
     progress: bool | Callable[[str], None] = True,
+    stage: str = "fits",
 ) -> list[TaskOutcome]:
     """Run fit tasks (skipping cached ones) and write each into ``outdir/<trial>/<model>/``.
 
@@ -269,7 +326,11 @@ def run_fits(
     force : bool
         Recompute tasks even when a matching cached result exists.
     progress : bool or callable
-        True: one line per finished task on stderr; a callable receives the lines.
+        True: a progress bar on stderr (the stage, the last finished trial and model,
+        tqdm's time estimate; a line at most every 30 s when stderr is a log file);
+        a callable receives one line per finished task instead; False: silent.
+    stage : str
+        Name of the stage on the bar.
 
     Returns
     -------
@@ -282,40 +343,38 @@ def run_fits(
     rel = [t.relpath for t in tasks]
     if len(set(rel)) != len(rel):
         raise ExecutorError("two tasks share a result folder (same trial name and model)")
-    say = _progress_sink(progress)
-    t_start = time.perf_counter()
+    shown = _Progress(progress, len(tasks), stage)
     outcomes: list[TaskOutcome | None] = [None] * len(tasks)
     todo: list[int] = []
-    done = 0
-    for i, t in enumerate(tasks):
-        hit = None if force else _cached(t, outdir / t.relpath)
-        if hit is None:
-            todo.append(i)
-            continue
-        outcomes[i] = TaskOutcome(t, outdir / t.relpath, hit, True, 0.0)
-        done += 1
-        if say:
-            say(_progress_line(done, len(tasks), outcomes[i], t_start))
+    try:
+        for i, t in enumerate(tasks):
+            hit = None if force else _cached(t, outdir / t.relpath)
+            if hit is None:
+                todo.append(i)
+                continue
+            outcomes[i] = TaskOutcome(t, outdir / t.relpath, hit, True, 0.0)
+            shown.finished(outcomes[i])
 
-    def finished(j: int, value: tuple[dict[str, bytes], dict[str, Any], float]) -> None:
-        nonlocal done
-        t = tasks[todo[j]]
-        files, record, seconds = value
-        folder = outdir / t.relpath
-        folder.mkdir(parents=True, exist_ok=True)
-        for name, data in files.items():
-            if name != "task.json":
-                (folder / name).write_bytes(data)
-        # task.json last: its presence with the key marks the folder complete.
-        (folder / "task.json").write_bytes(files["task.json"])
-        outcomes[todo[j]] = TaskOutcome(t, folder, record, False, seconds)
-        done += 1
-        if say:
-            say(_progress_line(done, len(tasks), outcomes[todo[j]], t_start))
+        def finished(j: int, value: tuple[dict[str, bytes], dict[str, Any], float]) -> None:
+            t = tasks[todo[j]]
+            files, record, seconds = value
+            folder = outdir / t.relpath
+            folder.mkdir(parents=True, exist_ok=True)
+            for name, data in files.items():
+                if name != "task.json":
+                    (folder / name).write_bytes(data)
+            # task.json last: its presence with the key marks the folder complete.
+            (folder / "task.json").write_bytes(files["task.json"])
+            outcomes[todo[j]] = TaskOutcome(t, folder, record, False, seconds)
+            shown.finished(outcomes[todo[j]])
 
-    if todo:
-        map_tasks(run_fit_task, [tasks[i] for i in todo], jobs=jobs, scheduler=scheduler,
-                  executor=executor, on_done=finished)
+        if todo:
+            first = tasks[todo[0]]
+            shown.note(f"{len(todo)} to fit, from {first.trial_name} {first.model}")
+            map_tasks(run_fit_task, [tasks[i] for i in todo], jobs=jobs, scheduler=scheduler,
+                      executor=executor, on_done=finished)
+    finally:
+        shown.close()
     return [o for o in outcomes if o is not None]
 
 

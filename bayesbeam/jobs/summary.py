@@ -86,6 +86,7 @@ def beam_summary(scores: Mapping[str, Mapping[str, Mapping[str, Any]]],
                 continue
             names = [n for n in ("E", *_SHOWN, "a") if n in recs[0]["posterior"]]
             params = {n: _pooled([r["posterior"][n] for r in recs]) for n in names}
+            params.update(_modal_damping(recs))
             lz = [r.get("log_evidence") for r in recs]
             le = [r.get("log_evidence_err") for r in recs]
             ok = all(x is not None for x in lz + le)
@@ -119,6 +120,27 @@ def beam_summary(scores: Mapping[str, Mapping[str, Mapping[str, Any]]],
     return out
 
 
+def _modal_damping(recs: Sequence[Mapping[str, Any]], n_modes: int = 2
+                   ) -> dict[str, tuple[float, float, float]]:
+    """Pooled ζ_k posteriors (``zeta1``, ``zeta2``) of the records' ``modes``, if all have them.
+
+    A damping law shows in how ζ changes from mode to mode (viscous ζ ∝ 1/f,
+    Kelvin–Voigt ζ ∝ f), which its parameters alone do not show across models.
+    """
+    out = {}
+    for k in range(n_modes):
+        rows = []
+        for r in recs:
+            modes = (r.get("modes") or {}).get("modes") or []
+            z = modes[k].get("damping_ratio") if k < len(modes) else None
+            if not isinstance(z, Mapping) or z.get("mean") is None or z.get("sd") is None:
+                break
+            rows.append(z)
+        if len(rows) == len(recs) and rows:
+            out[f"zeta{k + 1}"] = _pooled(rows)
+    return out
+
+
 def _fmt_param(name: str, v: tuple[float, float, float]) -> str:
     m, sd, sc = v
     if name == "E":
@@ -137,14 +159,16 @@ def format_table(rows: Sequence[Mapping[str, Any]]) -> str:
     -------
     str
     """
-    head = ["beam", "model", "E [GPa]", "damping (SI)", "Σ log Z ± err", "Δ log Z ± err",
-            "best/tied in", "verdict"]
+    head = ["beam", "model", "E [GPa]", "damping (SI)", "modal ζ1; ζ2", "Σ log Z ± err",
+            "Δ log Z ± err", "best/tied in", "verdict"]
     body = []
     for r in rows:
         p = r["params"]
         damp = "; ".join(_fmt_param(n, p[n]) for n in _SHOWN if n in p)
+        modal = "; ".join(f"{p[n][0]:.4g} ± {p[n][1]:.1g}" for n in ("zeta1", "zeta2")
+                          if n in p) or "n/a"
         body.append([
-            r["beam"], r["model"], _fmt_param("E", p["E"]) if "E" in p else "n/a", damp,
+            r["beam"], r["model"], _fmt_param("E", p["E"]) if "E" in p else "n/a", damp, modal,
             f"{r['log_z']:.1f} ± {r['log_z_err']:.2f}",
             "0" if r["verdict"].startswith("best") else f"{r['delta']:.1f} ± {r['delta_err']:.2f}",
             f"{r['wins']}/{r['n_trials']} trials", r["verdict"],
@@ -162,7 +186,8 @@ def format_table(rows: Sequence[Mapping[str, Any]]) -> str:
     legend = (
         "Values: mean over trials of the posterior mean ± RMS posterior sd [trial-to-trial sd "
         "of the posterior means]; gamma kg/(m s), c_d Pa s, eta N s m² (spatial-hysteresis "
-        "strength, = c_d I for a narrow kernel), b m. Σ log Z: the trials' log evidences "
+        "strength, = c_d I for a narrow kernel), b m; modal ζ1; ζ2: the posterior damping ratios "
+        "of modes 1 and 2 (pooled the same way). Σ log Z: the trials' log evidences "
         "added (independent records). Tie rule |Δ| <= max(2 sqrt(err_best² + err²), 1 nat). "
         "'best/tied in': trials where the model is the best or tied with it."
     )

@@ -1,12 +1,13 @@
 """Fit tasks: what one fit is, its cache key, and how a worker computes it.
 
 A :class:`FitTask` is one model on one trial with a seed and every setting; it is
-picklable and self-contained, so :func:`run_fit_task` (the entry point that
-:mod:`bayesbeam.jobs.executor` sends to local processes or Dask workers) computes the same
-bytes wherever it runs. :func:`run_fit_task` writes a task's files into a scratch folder
-and returns their contents (the folder layout is in :mod:`bayesbeam.jobs.executor`); each task
-runs with the BLAS thread pool limited to one thread (:mod:`threadpoolctl`, when
-installed), and one task at a time per process.
+picklable and self-contained (it carries the trial's data, not a path), so
+:func:`run_fit_task` (the entry point that :mod:`bayesbeam.jobs.executor` sends to local
+processes or Dask workers) computes the same bytes wherever it runs.
+:func:`run_fit_task` writes a task's files into a scratch folder and returns their
+contents (the folder layout is in :mod:`bayesbeam.jobs.executor`); each task runs with
+the BLAS thread pool limited to one thread, and one task at a time per process (the
+guard of every fit job, :func:`bayesbeam.comparison.compare._job_guard`).
 
 :func:`task_key` is the task's cache key: the SHA-256 of its trial (data file and TOML),
 model, settings and seed. Scheduling, the cache lookup and reading results back are in
@@ -15,14 +16,12 @@ model, settings and seed. Scheduling, the cache lookup and reading results back 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import json
 import tempfile
-import threading
 import time
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -65,10 +64,14 @@ class ExecutorError(ValueError):
 class FitTask:
     """One fit: a model on a trial with a seed and settings (picklable, self-contained).
 
+    The task carries the trial itself, read once by the caller; a worker opens no file,
+    so it needs neither a shared file system nor the caller's working directory.
+
     Attributes
     ----------
     trial_file : str
-        Absolute path of the trial TOML.
+        Absolute path of the trial TOML on the caller's machine (provenance only: the
+        worker does not read it).
     trial_name : str
         The trial's name (folder name of its results).
     data_sha256 : str
@@ -81,6 +84,10 @@ class FitTask:
         Seed of the fit and of the evidence estimate.
     settings : dict
         Full settings (:data:`DEFAULT_SETTINGS` updated by the caller's).
+    trial : Trial or None
+        The trial's data (:class:`~bayesbeam.trials.trial.Trial`: times, values, beam,
+        metadata), which travels with the task; its ``sha256`` is ``data_sha256``.
+        Not part of the key (the SHA-256s are) nor of ``task.json``.
     """
 
     trial_file: str
@@ -90,6 +97,7 @@ class FitTask:
     model: str
     seed: int
     settings: dict = field(default_factory=dict, hash=False)
+    trial: Any = field(default=None, hash=False, compare=False, repr=False)
 
     @property
     def key(self) -> str:
@@ -102,8 +110,10 @@ class FitTask:
         return f"{self.trial_name}/{self.model}"
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON record of the task (``task.json``), key included."""
-        d = dataclasses.asdict(self)
+        """JSON record of the task (``task.json``), key included, the trial's data not."""
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+             if f.name != "trial"}
+        d["settings"] = dict(self.settings)
         d["key"] = self.key
         return d
 
@@ -184,6 +194,7 @@ def fit_tasks(
             out.append(FitTask(
                 trial_file=str(path), trial_name=trial.name, data_sha256=trial.sha256,
                 toml_sha256=file_sha256(path), model=m, seed=int(seed), settings=dict(s),
+                trial=trial,
             ))
     return out
 
@@ -215,38 +226,6 @@ class TaskOutcome:
 # --------------------------------------------------------------------------- workers
 
 
-_LIMIT_LOCK = threading.Lock()
-_TASK_LOCK = threading.Lock()
-_LIMIT_STATE: dict[str, Any] = {"depth": 0, "controller": None}
-
-
-@contextlib.contextmanager
-def _single_thread() -> Iterator[None]:
-    """Limit BLAS/OpenMP pools to one thread (threadpoolctl), if it is installed.
-
-    The limit is process-wide; with tasks in several threads of one process (a Dask
-    worker with threads) the first task to enter sets it and the last to leave
-    restores the original sizes.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # optional: results stay correct, only oversubscription risk
-        yield
-        return
-    with _LIMIT_LOCK:
-        if _LIMIT_STATE["depth"] == 0:
-            _LIMIT_STATE["controller"] = threadpool_limits(limits=1)
-        _LIMIT_STATE["depth"] += 1
-    try:
-        yield
-    finally:
-        with _LIMIT_LOCK:
-            _LIMIT_STATE["depth"] -= 1
-            if _LIMIT_STATE["depth"] == 0:
-                _LIMIT_STATE["controller"].restore_original_limits()
-                _LIMIT_STATE["controller"] = None
-
-
 def _dump(path: Path, obj: Any) -> None:
     text = json.dumps(finite_json(json.loads(json.dumps(obj, default=json_default))), indent=2,
                       allow_nan=False)
@@ -258,14 +237,20 @@ def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any
     import numpy as np
 
     from bayesbeam.comparison.scoring import evaluate
+    from bayesbeam.inference.modal import modal_posterior
+    from bayesbeam.inference.modal_plots import plot_zeta_vs_f
     from bayesbeam.inference.problem import Problem
-    from bayesbeam.trials.io import read_trial
 
     s = task.settings
-    trial = read_trial(task.trial_file)
+    trial = task.trial
+    if trial is None:
+        raise ExecutorError(
+            f"the task of {task.model!r} on {task.trial_name} carries no trial data; build "
+            "tasks with fit_tasks (a worker reads no trial file)"
+        )
     if trial.sha256 != task.data_sha256:
         raise ExecutorError(
-            f"{task.trial_file}: its data changed since the task was made (SHA-256 "
+            f"the trial data of {task.trial_name} do not match the task (SHA-256 "
             f"{trial.sha256[:12]}..., task {task.data_sha256[:12]}...); rebuild the tasks"
         )
     problem = Problem(trial, task.model, n_elements=int(s["n_elements"]), initial=s["initial"])
@@ -293,9 +278,16 @@ def _compute(task: FitTask, folder: Path, t0: float, c0: float) -> dict[str, Any
         loo_pointwise=score.loo.pointwise, pareto_k=score.loo.pareto_k,
         waic_pointwise=score.waic.pointwise, p_waic_i=score.waic.p_waic_i,
     )
+    fitted = problem.with_mesh(int(res.settings["n_elements"]))  # the fit's final mesh
+    # f_k and ζ_k of the posterior (the quantity a damping study looks at first).
+    modes = modal_posterior(fitted, res)
+    record["modes"] = modes.to_json_dict()
+    record["units"] = res.units()
     if s.get("plots"):
-        fitted = problem.with_mesh(int(res.settings["n_elements"]))  # the fit's final mesh
         record["figures"] = _plots(trial, fitted, score, folder, s)
+        if plot_zeta_vs_f(modes, folder / "zeta_vs_f.png", dpi=int(s.get("plot_dpi", 90)),
+                          title=f"{task.trial_name}: {task.model}") is not None:
+            record["figures"].append("zeta_vs_f.png")
     # Timing of the whole task (fit, evidence, criteria, plots) in this worker.
     record["task_seconds"] = time.perf_counter() - t0
     record["task_cpu_seconds"] = time.process_time() - c0
@@ -351,11 +343,11 @@ def run_fit_task(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float
     ExecutorError
         When the fit fails; the message names the task and the cause.
     """
-    # One task at a time per process: the warning filters that evaluate() uses to record
-    # the sampler's warnings and the BLAS thread limit are process-wide, so tasks in
-    # threads of one process (a threaded Dask worker) must not overlap. Parallelism comes
-    # from processes (a process pool, or Dask workers with one thread each).
-    with _TASK_LOCK:
+    # One task at a time per process, with one BLAS thread: the guard of every fit job
+    # (bayesbeam.comparison.compare._job_guard says why).
+    from bayesbeam.comparison.compare import _job_guard
+
+    with _job_guard():
         try:
             return _run_locked(task)
         except Exception as err:  # say which task failed; the cause stays chained
@@ -368,7 +360,7 @@ def run_fit_task(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float
 def _run_locked(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float]:
     t0 = time.perf_counter()
     c0 = time.process_time()
-    with _single_thread(), tempfile.TemporaryDirectory(prefix="bayesbeam-task-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="bayesbeam-task-") as tmp:
         folder = Path(tmp)
         record = _compute(task, folder, t0, c0)
         files = {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()

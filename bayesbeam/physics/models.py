@@ -4,33 +4,20 @@ A model is the set of damping laws (physics.md §1) plus optional extensions fro
 the diagnosis catalogue (physics.md §3). Its name joins the parts with '+' in a
 canonical order, e.g. ``viscous+kv`` or ``viscous+kv+tip_mass``.
 
-Physical parameter names (SI units):
-
-============  ===========  ===============================================
-name          unit         meaning
-============  ===========  ===============================================
-E             Pa           Young's modulus (reference value)
-gamma         kg/(m s)     viscous (air) damping per unit length
-c_d           Pa s         Kelvin–Voigt strain-rate damping, moment c_d I w_xxt
-a             N s          spatial-hysteresis strength (Banks–Inman)
-b             m            spatial-hysteresis kernel width (Gaussian sd)
-tip_mass      kg           concentrated tip mass added to the beam's own
-added_mass    kg           concentrated mass at added_mass_position
-added_mass_position  m     its distance from the clamp, in [0, L]
-root_spring   N m/rad      rotational clamp stiffness k_theta
-stiffness_gradient  1      EI(x) factor 1 + g (x/L - 1/2)
-drag          kg/m²        quadratic air drag per unit length, force -c_q |w_t| w_t
-friction      N            dry (Coulomb) clamp friction on the first mode
-f1_slope      Hz/m         change of the first natural frequency per m of its tip
-                           amplitude (negative: softening)
-============  ===========  ===============================================
+Every parameter name a model can sample or report has its SI unit and meaning in one
+table, :data:`PARAMETER_UNITS` (E in Pa, gamma in kg/(m s), c_d in Pa s, ...), read
+by :func:`parameter_units`; the ArviZ trees of the fits take their ``units`` and
+``long_name`` attributes from it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["LAWS", "NOISE", "NONLINEAR", "STRUCTURAL", "Model", "ModelError", "parse_model"]
+__all__ = [
+    "LAWS", "NOISE", "NONLINEAR", "PARAMETER_UNITS", "SIGNAL", "STRUCTURAL", "Model",
+    "ModelError", "parameter_units", "parse_model",
+]
 
 #: Damping laws and their parameters (physics.md §1).
 LAWS: dict[str, tuple[str, ...]] = {"viscous": ("gamma",), "kv": ("c_d",), "sh": ("a", "b")}
@@ -54,6 +41,85 @@ _RENAMED: dict[str, str] = {
 }
 #: Extensions of the noise / observation model.
 NOISE: dict[str, tuple[str, ...]] = {"ar1_noise": ("rho",), "sensor_offset": ("offset",)}
+
+#: Placeholder unit in :data:`PARAMETER_UNITS`: the SI unit of the trial's measured
+#: quantity (m, m/s or m/s^2), known only with the trial (:func:`parameter_units`).
+SIGNAL = "<signal>"
+
+#: Name -> (SI unit, meaning) of every parameter a model samples or reports: the
+#: physical parameters of the parts above, the spatial-hysteresis strength ``eta`` that
+#: :mod:`bayesbeam.inference.problem` samples in place of ``a``, the initial conditions of
+#: :func:`bayesbeam.physics.forward.initial_names` (``A<k>``, ``B<k>``: see
+#: :func:`parameter_units`) and the noise parameters. Units are written in ASCII with
+#: ``^`` for powers and a space for products, as in the trial files.
+PARAMETER_UNITS: dict[str, tuple[str, str]] = {
+    "E": ("Pa", "Young's modulus (reference value)"),
+    "gamma": ("kg/(m s)", "viscous (air) damping per unit length"),
+    "c_d": ("Pa s", "Kelvin-Voigt strain-rate damping (moment c_d I w_xxt)"),
+    "a": ("N s", "spatial-hysteresis strength (Banks-Inman)"),
+    "eta": ("N s m^2", "spatial-hysteresis strength as the Kelvin-Voigt c_d I of equal "
+                       "first-mode damping"),
+    "b": ("m", "spatial-hysteresis kernel width (Gaussian sd)"),
+    "tip_mass": ("kg", "concentrated tip mass added to the beam's own"),
+    "added_mass": ("kg", "concentrated mass at added_mass_position"),
+    "added_mass_position": ("m", "distance of added_mass from the clamp, in [0, L]"),
+    "root_spring": ("N m/rad", "rotational clamp stiffness k_theta"),
+    "stiffness_gradient": ("1", "EI(x) factor 1 + g (x/L - 1/2)"),
+    "drag": ("kg/m^2", "quadratic air drag per unit length (force -c_q |w_t| w_t)"),
+    "friction": ("N", "dry (Coulomb) clamp friction on the first mode"),
+    "f1_slope": ("Hz/m", "change of the first natural frequency per m of its tip amplitude "
+                         "(negative: softening)"),
+    "w0": ("m", "initial tip deflection of a release"),
+    "p0": ("N s", "tip impulse from rest"),
+    "sigma": (SIGNAL, "noise standard deviation (marginal, for AR(1) noise)"),
+    "rho": ("1", "lag-one correlation of the AR(1) noise"),
+    "offset": (SIGNAL, "constant sensor offset"),
+}
+
+
+def parameter_units(
+    name: str, signal_unit: str | None = None, *, default: tuple[str, str] | None = None,
+) -> tuple[str, str]:
+    """SI unit and meaning of a parameter name (:data:`PARAMETER_UNITS`).
+
+    Parameters
+    ----------
+    name : str
+        A name of :data:`PARAMETER_UNITS`, or ``A<k>`` / ``B<k>`` (the displacement and
+        velocity/ω amplitudes of mode k at the sensor of the ``modes:K`` initial
+        condition, m).
+    signal_unit : str, optional
+        SI unit of the trial's measured quantity (``"m"``, ``"m/s"`` or ``"m/s^2"``),
+        the unit of ``sigma`` and ``offset``; without it their unit reads
+        :data:`SIGNAL`.
+    default : tuple of str, optional
+        Returned for a name not in the table (instead of the error).
+
+    Returns
+    -------
+    unit : str
+        ``"1"`` for a dimensionless parameter.
+    meaning : str
+        A short description (an ArviZ ``long_name``).
+
+    Raises
+    ------
+    KeyError
+        For a name not in the table, without ``default``.
+    """
+    if name[:1] in ("A", "B") and name[1:].isdigit():
+        what = "displacement" if name[0] == "A" else "velocity/omega"
+        return "m", f"{what} amplitude of mode {name[1:]} at the sensor (initial condition)"
+    if name not in PARAMETER_UNITS:
+        if default is not None:
+            return default
+        raise KeyError(f"no unit known for parameter {name!r}; add it to PARAMETER_UNITS "
+                       "(bayesbeam.physics.models)")
+    unit, meaning = PARAMETER_UNITS[name]
+    if unit == SIGNAL and signal_unit is not None:
+        unit = signal_unit
+    return unit, meaning
+
 
 _ORDER = list(LAWS) + list(STRUCTURAL) + list(NONLINEAR) + list(NOISE)
 

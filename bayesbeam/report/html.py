@@ -37,7 +37,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import write_text_atomic
+from bayesbeam._util import interval_digits, write_text_atomic
 
 __all__ = ["REPORT_NAME", "ReportError", "build_report", "markdown_to_html", "write_report"]
 
@@ -236,14 +236,23 @@ def _checks_html(summary: dict) -> str:
     return "".join(out)
 
 
+def _posterior_cells(v: dict) -> list[str]:
+    """Mean, sd, 5 %, 50 %, 95 % with enough digits that the interval shows (not 7.000e10 x3)."""
+    try:
+        d = interval_digits(*(float(v[k]) for k in ("q50", "q05", "q95")), minimum=4)
+    except (KeyError, TypeError, ValueError):
+        d = 4
+    return [_fmt(v.get("mean"), f"#.{d}g"), _fmt(v.get("sd"), ".2g"),
+            *(_fmt(v.get(k), f"#.{d}g") for k in ("q05", "q50", "q95"))]
+
+
 def _fit_section(summary: dict, score: dict | None) -> str:
     if "_error" in summary:
         return f'<p class="warn">{_esc(summary["_error"])}</p>'
     parts = []
     post = summary.get("posterior", {})
     if post:
-        rows = [[name, *(_fmt(v.get(k)) for k in ("mean", "sd", "q05", "q50", "q95"))]
-                for name, v in post.items()]
+        rows = [[name, *_posterior_cells(v)] for name, v in post.items()]
         parts.append(_table(["parameter (SI)", "mean", "sd", "5 %", "50 %", "95 %"], rows))
     diag = summary.get("diagnostics", {})
     conv = summary.get("converged", diag.get("converged"))

@@ -61,6 +61,7 @@ from typing import Any
 import emcee
 import numpy as np
 
+from bayesbeam._util import _in_notebook, progress_bar
 from bayesbeam.stats.checkpoint import CheckpointBackend, SamplingError, open_checkpoint
 from bayesbeam.stats.convergence import Check, autocorr_time, check_convergence, failed_criteria
 from bayesbeam.stats.priors import PriorSet
@@ -320,33 +321,33 @@ def preburn_walkers(
 
 
 class _Progress:
-    """Progress of the sampler on stderr: stage, steps, ESS and an estimate of the time left.
+    """Progress of the sampler (:func:`bayesbeam._util.progress_bar`): stage, steps, ESS, time left.
 
-    On a terminal one line is rewritten in place (every ``min_interval`` s); otherwise
-    (a log file, a pipe) a full line is written every ``log_interval`` s. The time left
-    is ``elapsed × (target_ess / ess_min - 1)`` once the ESS is known (the ESS grows
-    about linearly with the steps after burn-in), else the time to ``max_steps`` at the
-    current pace (an upper bound).
+    A tqdm bar on a terminal, a widget in Jupyter, a line every ``log_interval`` s in a
+    log file. The bar counts steps up to ``max_steps``, but the run usually stops earlier,
+    on the ESS target; so the time left shown is this module's own estimate, not tqdm's:
+    ``elapsed × (target_ess / ess_min - 1)`` once the ESS is known (the ESS grows about
+    linearly with the steps after burn-in), else the time to ``max_steps`` at the
+    current pace (an upper bound, said as "at most").
     """
 
-    def __init__(self, enabled: bool, max_steps: int, target_ess: float,
-                 min_interval: float = 0.5, log_interval: float = 10.0):
-        self.enabled = enabled
-        self.max_steps = max_steps
+    def __init__(self, enabled: bool, max_steps: int, target_ess: float, label: str = "emcee",
+                 log_interval: float = 10.0):
         self.target_ess = target_ess
-        self.tty = bool(getattr(sys.stderr, "isatty", lambda: False)())
-        self.min_interval = min_interval if self.tty else log_interval
-        self._last = -math.inf
+        self.max_steps = max_steps
+        self.bar = progress_bar(
+            max_steps, label, enabled=enabled, unit="step", log_interval=log_interval,
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| step {n_fmt}/{total_fmt} "
+                       "[{elapsed}{postfix}]",
+        )
         self._info = ""
         self._ess = math.nan
-        self._shown: int | bool = False
-        self._step = 0
         self._t0 = time.monotonic()
         self._step0: int | None = None
 
     def set_info(self, check: Check) -> None:
         tmax = float(np.max(check.tau))
-        self._info = f"  tau_max {tmax:.1f}" if math.isfinite(tmax) else ""
+        self._info = f"tau_max {tmax:.1f}" if math.isfinite(tmax) else ""
         if not np.any(np.isnan(check.ess)):
             self._ess = float(np.min(check.ess))
             self._info += f"  ess_min {self._ess:.0f}/{self.target_ess:g}"
@@ -359,35 +360,25 @@ class _Progress:
         to_max = elapsed / done * (self.max_steps - step)
         if math.isfinite(self._ess) and self._ess > 0:
             left = min(to_max, elapsed * max(self.target_ess / self._ess - 1.0, 0.0))
-            return f"  ~{_duration(left)} left"
-        return f"  at most ~{_duration(to_max)} left"
+            return f"~{_duration(left)} left"
+        return f"at most ~{_duration(to_max)} left"
 
     def update(self, step: int, force: bool = False) -> None:
-        if not self.enabled:
+        if self.bar.disable:
             return
         if self._step0 is None:
             self._step0, self._t0 = step - 1, time.monotonic()
-        self._step = step
-        now = time.monotonic()
-        if not force and now - self._last < self.min_interval:
-            return
-        self._last = now
-        self._write(step)
-
-    def _write(self, step: int) -> None:
-        text = f"emcee: step {step}/{self.max_steps}{self._info}{self._eta(step)}"
-        sys.stderr.write(f"\r{text}\x1b[K" if self.tty else text + "\n")
-        sys.stderr.flush()
-        self._shown = step
+            self.bar.n = self.bar.last_print_n = step - 1  # a resumed run starts there
+        post = "  ".join(x for x in (self._info, self._eta(step)) if x)
+        self.bar.set_postfix_str(post, refresh=False)
+        if force:
+            self.bar.n = step
+            self.bar.refresh()
+        else:
+            self.bar.update(step - self.bar.n)  # tqdm throttles the redraws
 
     def close(self) -> None:
-        if not self.enabled:
-            return
-        if not self.tty and self._step0 is not None and self._shown != self._step:
-            self._write(self._step)  # the last state, also between two log lines
-        elif self.tty and self._shown:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
+        self.bar.close()
 
 
 def _duration(seconds: float) -> str:
@@ -556,6 +547,7 @@ def run_emcee(
     names: Sequence[str] | None = None,
     moves: Any = None,
     preburn: int = 0,
+    label: str = "emcee",
 ) -> Chain:
     """Sample with emcee until converged (see the module notes) or ``max_steps``.
 
@@ -597,7 +589,8 @@ def run_emcee(
         Longest stretch of sampling between writes to ``backend_path`` (a hard
         kill loses at most this much work); ``0`` writes every step.
     progress : bool or None, default None
-        Progress line on stderr; ``None`` shows it only when stderr is a terminal.
+        Progress bar on stderr (:func:`bayesbeam._util.progress_bar`: terminal, Jupyter or
+        log lines); ``None`` shows it only on a terminal or in Jupyter.
     names : sequence of str, optional
         Parameter names (default ``p0, p1, ...``).
     moves : optional
@@ -606,6 +599,8 @@ def run_emcee(
         Steps of a first, discarded run (in memory, before the recorded chain) in
         which stranded walkers are moved back to the ensemble (:func:`preburn_walkers`).
         Only on a fresh start; a resumed checkpoint continues as it was.
+    label : str, default "emcee"
+        What the progress bar calls this run (e.g. ``"fit viscous+kv"``).
 
     Returns
     -------
@@ -634,14 +629,14 @@ def run_emcee(
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SamplingError(f"seed must be a non-negative int, got {seed!r}")
     seed = int(seed)
-    for label, v, lo in (
+    for what, v, lo in (
         ("max_steps", max_steps, 1),
         ("check_every", check_every, 1),
         ("thin", thin, 1),
         ("min_steps", min_steps, 0),
     ):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise SamplingError(f"{label} must be an int >= {lo}, got {v!r}")
+            raise SamplingError(f"{what} must be an int >= {lo}, got {v!r}")
     if not (tau_rtol > 0 and n_tau > 0):
         raise SamplingError(f"tau_rtol and n_tau must be > 0, got {tau_rtol!r}, {n_tau!r}")
     if not (burn_in_taus >= 0 and target_ess >= 0 and checkpoint_seconds >= 0):
@@ -650,7 +645,7 @@ def run_emcee(
     if len(names) != ndim or len(set(names)) != ndim:
         raise SamplingError(f"need {ndim} distinct names, got {names!r}")
     if progress is None:
-        progress = bool(getattr(sys.stderr, "isatty", lambda: False)())
+        progress = bool(getattr(sys.stderr, "isatty", lambda: False)()) or _in_notebook()
 
     path = None if backend_path is None else Path(backend_path)
     prior_calls, prior_seconds = 0, 0.0
@@ -689,7 +684,7 @@ def run_emcee(
         # emcee restored the RNG state saved with the last step; continue from there.
         state = backend.get_last_sample()
 
-    bar = _Progress(bool(progress), max_steps, target_ess)
+    bar = _Progress(bool(progress), max_steps, target_ess, label=label)
 
     def evaluate(n: int, prev_tau: np.ndarray | None) -> Check:
         return check_convergence(
@@ -737,7 +732,7 @@ def run_emcee(
                 check = evaluate(it, prev_tau)
                 prev_tau = check.tau
                 bar.set_info(check)
-                bar.update(it, force=bar.tty)
+                bar.update(it, force=True)
                 save_meta()
             if stop.requested:  # Ctrl-C during the last check: still an interruption
                 raise KeyboardInterrupt(f"sampling interrupted after step {it}")

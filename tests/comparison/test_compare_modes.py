@@ -30,13 +30,18 @@ GAMMA = 2 * BEAM.rhoA * W1 * 0.01
 C_D = 2 * E * 0.01 / W1
 
 
-def test_save_with_trial_writes_modes_and_zeta_vs_f(tmp_path, gaussian_cloud_result):
+def release_trial() -> Trial:
+    """A 0.5 s viscous release on the 4-element beam, 1e-5 m noise (seed 0)."""
     t = np.arange(128) / 256
     y = simulate_signal(BEAM, "viscous", {"E": E, "w0": 0.005, "gamma": GAMMA}, t,
                         n_elements=NE)
     rng = np.random.default_rng(0)
-    trial = Trial(times=t, values=y + 1e-5 * rng.standard_normal(t.size),
-                  quantity="displacement", beam=BEAM, name="release")
+    return Trial(times=t, values=y + 1e-5 * rng.standard_normal(t.size),
+                 quantity="displacement", beam=BEAM, name="release")
+
+
+def test_save_with_trial_writes_modes_and_zeta_vs_f(tmp_path, gaussian_cloud_result):
+    trial = release_trial()
     scores, records = [], {}
     for model, damping in (("viscous", GAMMA), ("kv", C_D)):
         pr = Problem(trial, model, n_elements=NE)
@@ -62,7 +67,7 @@ def test_save_with_trial_writes_modes_and_zeta_vs_f(tmp_path, gaussian_cloud_res
     assert "zeta_vs_f" not in plain and not (tmp_path / "plain" / "zeta_vs_f.png").exists()
     assert "modes" not in json.loads((tmp_path / "plain" / "comparison.json").read_text())
     # Another trial than the compared one is refused.
-    short = Trial(times=t[:100], values=trial.values[:100], quantity="displacement",
+    short = Trial(times=trial.times[:100], values=trial.values[:100], quantity="displacement",
                   beam=BEAM)
     with pytest.raises(CompareError, match="scored on 128 samples"):
         comp.modal_posteriors(short)

@@ -291,6 +291,21 @@ def test_smoke_offset_named_and_cli(tmp_path):
     assert set(out["final_posterior"]) == set(post)
     assert (tmp_path / "out" / "report.md").is_file()
     assert (tmp_path / "out" / "signatures_final.png").is_file()
+    assert out["final_posterior_units"]["offset"] == "m"  # the trial's signal unit
+    # Complete ArviZ trees of the baseline and the final model, which arviz.compare
+    # ranks, and their modal posteriors in the record and the ζ-vs-f figure.
+    import arviz as az
+
+    trees = {m: az.from_netcdf(tmp_path / "out" / "fits" / m / "posterior.nc")
+             for m in ("viscous", "viscous+sensor_offset")}
+    for tree in trees.values():
+        assert {"posterior", "log_likelihood", "posterior_predictive", "observed_data",
+                "prior"} <= set(tree.children)
+    ranked = az.compare(trees)
+    assert set(ranked.index) == set(trees)
+    assert set(out["modes"]) == set(trees)
+    assert out["modes"]["viscous"]["modes"][0]["frequency_hz"]["q50"] > 0
+    assert (tmp_path / "out" / "zeta_vs_f.png").is_file()
 
 
 def test_bad_input():

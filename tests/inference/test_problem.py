@@ -118,6 +118,28 @@ def test_invalid_sets_give_minus_inf_not_nan(trial):
     assert np.all(pr.log_likelihood(U[:1]) == -np.inf)
 
 
+def test_pointwise_log_likelihood_in_batches_sums_to_the_total(trial):
+    # More points than one forward-model batch, an invalid one on each side of the
+    # batch boundary: rows sum to log_likelihood (same residuals, another order of
+    # summation over T = 64 terms of size ~10: rounding ~1e-14 relative, rtol 1e-10),
+    # invalid points give -inf rows, and the batches do not mix rows.
+    from bayesbeam.inference.problem import POINTWISE_BATCH
+
+    pr = Problem(trial, "viscous", priors={"E": Normal(6.2e10, 1e11)}, n_elements=NE)
+    k = POINTWISE_BATCH + 10
+    rng = np.random.default_rng(4)
+    X = np.array([6.2e10, 0.2, 0.005, 1e-5]) * (1 + 1e-3 * rng.standard_normal((k, 4)))
+    U = pr.priors.to_u(X)
+    bad = [POINTWISE_BATCH - 1, POINTWISE_BATCH + 3]
+    U[bad, 0] = -1e9  # E < 0: rejected by the forward model
+    pw = pr.log_likelihood_pointwise(U)
+    assert pw.shape == (k, trial.times.size)
+    assert np.all(pw[bad] == -np.inf)
+    ok = np.setdiff1d(np.arange(k), bad)
+    np.testing.assert_allclose(pw[ok].sum(axis=1), pr.log_likelihood(U[ok]), rtol=1e-10)
+    assert pr.signal_unit == "m"
+
+
 def _analytic_mode1():
     """First cantilever mode φ(s), s = x/L, and its derivatives (Euler–Bernoulli)."""
     b = BETA1

@@ -47,6 +47,9 @@ def test_inspect_writes_record_figures_and_summary(trial_toml, tmp_path, capsys)
     assert np.allclose(f1, 6.0, rtol=1e-4)
     assert rec["bins"] and rec["bins"][-1]["ratio"] == pytest.approx(6.5, rel=1e-3)
     assert "largest amplitude bin" in out and "f2/f1" in out and "offset" in out
+    # constant modal parameters: no change of state (tested or, if too short, said so)
+    assert rec["state_change"]["found"] is False
+    assert rec["state_change"]["reason"] in out
     # The span: the record starts at its largest value (a release), so the analysis
     # starts 0.1 s later (trials.preprocess); stderr says so and shows no progress for a
     # run of a second.

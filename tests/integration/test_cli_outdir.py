@@ -242,7 +242,7 @@ def test_ctrl_c_during_sampling_keeps_stdout_clean_and_resumes(trial, tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     for line in proc.stderr:  # wait for the sampler's first progress line
-        if line.startswith("emcee: step"):
+        if "emcee:" in line and "step " in line:
             break
     time.sleep(2.0)
     proc.send_signal(signal.SIGINT)
@@ -285,7 +285,7 @@ def test_kill_during_output_writing_loses_nothing(trial, tmp_path):
                              capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr
     assert "took over the lock of fit run" in resumed.stderr
-    assert "emcee: step" not in resumed.stderr  # nothing sampled again
+    assert "emcee:" not in resumed.stderr  # nothing sampled again
     with h5py.File(out / "chain.h5") as f:
         assert (f["mcmc/chain"][:] == chain).all()
     assert (out / "posterior.nc").is_file() and (out / "summary.json").is_file()

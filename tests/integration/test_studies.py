@@ -5,12 +5,14 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import sys
+import tempfile
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import bayesbeam
 from bayesbeam.trials.io import read_trial
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -134,20 +136,61 @@ def test_source_replication_runs_at_a_small_size(tmp_path):
     assert all(np.isfinite(r["log_z"]) for r in rows)
 
 
+def _notebook_text(nb) -> str:
+    """Every code cell's outputs as one text: streams, plain-text and HTML results, errors."""
+    parts = []
+    for c in nb.cells:
+        for o in c.get("outputs", []):
+            parts.append(o.get("text", ""))
+            data = o.get("data", {})
+            parts += [data.get("text/plain", ""), data.get("text/html", ""),
+                      data.get("text/markdown", "")]
+            parts += [o.get("evalue", "")]
+    return "\n".join(parts)
+
+
+def test_committed_notebook_keeps_its_outputs():
+    # The notebook is rendered in the repository: every code cell ran, none failed, the
+    # report was written, and no machine's paths (this checkout, the temporary folder,
+    # the interpreter) were written into it.
+    nbformat = pytest.importorskip("nbformat")
+    nb = nbformat.read(STUDIES / "model_comparison.ipynb", as_version=4)
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    assert code and all(c.outputs for c in code)
+    counts = [c.execution_count for c in code]
+    assert counts == list(range(1, len(code) + 1)), "executed in order, in one kernel"
+    assert not [o for c in code for o in c.outputs if o.output_type == "error"]
+    assert any(o.get("output_type") == "display_data" and "image/png" in o.get("data", {})
+               for c in code for o in c.outputs)
+    text = _notebook_text(nb)
+    assert "report.html" in text and "beam1-trial1.toml" in text
+    for local in (str(ROOT), tempfile.gettempdir(), sys.prefix, str(Path.home())):
+        assert local not in text, f"the notebook's outputs name a local path ({local})"
+    # Kept small: the figures are the bulk; far under the data folder's size.
+    assert (STUDIES / "model_comparison.ipynb").stat().st_size < 400_000
+
+
 @pytest.mark.slow
 def test_notebook_executes_with_the_venv_kernel(tmp_path):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     nb = nbformat.read(STUDIES / "model_comparison.ipynb", as_version=4)
+    # One more cell, in this run only: which interpreter and which bayesbeam the kernel used.
+    nb.cells.append(nbformat.v4.new_code_cell(
+        "import sys, bayesbeam; print(sys.executable); print(bayesbeam.__file__)"))
+    # The kernel's working directory is an empty folder: the example trials must come from
+    # the package (find_data), not from a path relative to the repository.
     client = nbclient.NotebookClient(nb, kernel_name="python3", timeout=600,
                                      resources={"metadata": {"path": str(tmp_path)}})
     client.execute()
     # The kernel is this interpreter (jupyter_client maps the spec's "python" to
     # sys.executable), so the notebook saw this environment's bayesbeam.
-    first = "".join(o.get("text", "") for o in nb.cells[1].outputs)
-    assert f"Python: {sys.executable}" in first
+    where = "".join(o.get("text", "") for o in nb.cells[-1].outputs).splitlines()
+    assert where[0] == sys.executable
+    assert Path(where[1]).resolve() == Path(bayesbeam.__file__).resolve()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
               if o.output_type == "error"]
     assert not errors
-    last = "".join(o.get("text", "") for o in nb.cells[-1].outputs)
+    last = "".join(o.get("text", "") for o in nb.cells[-2].outputs)
     assert "report.html" in last
+    assert not list(tmp_path.iterdir()), "the notebook writes into its own temporary folder"

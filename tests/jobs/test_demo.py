@@ -71,6 +71,25 @@ def test_beam_summary_adds_evidences_and_applies_the_tie_rule():
     assert "beam1" in text and "52.000" in text and "tied with best" in text
 
 
+def test_beam_summary_pools_modal_damping_when_every_trial_has_it():
+    def with_modes(rec, z1, z2):
+        modes = [{"damping_ratio": {"mean": z, "sd": 1e-5}} for z in (z1, z2)]
+        return {**rec, "modes": {"modes": modes}}
+
+    scores = {
+        "beam1-trial1": {"a": with_modes(_score(100.0, 0.3, 50e9, 1e8), 0.010, 0.004),
+                         "b": _score(90.0, 0.4, 52e9, 3e8)},
+        "beam1-trial2": {"a": with_modes(_score(101.0, 0.4, 54e9, 2e8), 0.012, 0.006),
+                         "b": with_modes(_score(110.5, 0.3, 53e9, 1e8), 0.01, 0.01)},
+    }
+    a, b = beam_summary(scores, {}, ["a", "b"])
+    assert a["params"]["zeta1"][0] == pytest.approx(0.011)
+    assert a["params"]["zeta2"][0] == pytest.approx(0.005)
+    assert "zeta1" not in b["params"]  # one trial lacks modes: no pooled value
+    text = format_table([a, b])
+    assert "0.011 ± 1e-05; 0.005 ± 1e-05" in text and "n/a" in text
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
@@ -155,3 +174,77 @@ def test_tiny_replication_with_diagnosis_in_a_process_pool(tmp_path):
     d = tmp_path / "diagnosis-beam1-trial1"
     assert (d / "diagnosis.json").is_file() and (d / "diagnosis.md").is_file()
     assert "Diagnosis" in (tmp_path / "report.html").read_text()
+
+
+class _FakeDiagnosis:
+    """What run_diagnosis_task needs of a Diagnosis (the real one is a slow test)."""
+
+    signatures_before = signatures_after = None
+
+    def __init__(self, trial):
+        self.trial = trial
+
+    def to_json_dict(self):
+        return {"trial": self.trial.name, "named_causes": [], "n": int(self.trial.times.size)}
+
+    def narrative(self):
+        return f"# Diagnosis of {self.trial.name}\n"
+
+
+def test_diagnosis_task_carries_the_trial_not_a_relative_path(tmp_path, monkeypatch):
+    # `bayesbeam demo --data DIR` with a relative DIR: the diagnosis task named the trial
+    # by that relative path and a worker in another folder (a Dask worker) could not
+    # read it. The task now carries the trial's data; the key is unchanged by the path.
+    import shutil
+
+    from bayesbeam.jobs import demo
+
+    data = tmp_path / "here" / "mydata"
+    data.mkdir(parents=True)
+    for suffix in (".toml", ".csv"):
+        shutil.copy(DATA_DIR / f"beam1-trial1{suffix}", data)
+    monkeypatch.chdir(tmp_path / "here")
+    settings = {**demo.DIAGNOSIS_SETTINGS, "candidates": ("kv",)}
+    spec, trial = demo._diagnosis_spec(demo.Path("mydata/beam1-trial1.toml"), 0, settings)
+    absolute, _ = demo._diagnosis_spec(data / "beam1-trial1.toml", 0, settings)
+    assert spec == absolute  # the same record and cache key from either path
+    assert demo.Path(spec["trial_file"]).is_absolute() and "trial" not in spec
+    json.dumps(spec)  # task.json
+    seen = []
+
+    def fake_diagnose(trial, baseline, **kw):
+        seen.append((trial, baseline, kw["seed"]))
+        return _FakeDiagnosis(trial)
+
+    monkeypatch.setattr("bayesbeam.diagnosis.diagnose.diagnose", fake_diagnose)
+    monkeypatch.chdir(tmp_path)  # where a worker might start: mydata/ is not here
+    files, record, _ = demo.run_diagnosis_task({**spec, "trial": trial})
+    assert seen == [(trial, "viscous", 0)]
+    assert record["n"] == trial.times.size and b"beam1-trial1" in files["diagnosis.md"]
+
+
+@pytest.mark.slow
+def test_demo_with_relative_data_on_a_dask_cluster(tmp_path, monkeypatch):
+    # The cluster's workers start in an empty folder; the demo then runs from the folder
+    # that holds the data, named by a relative path the workers cannot resolve.
+    import shutil
+
+    distributed = pytest.importorskip("dask.distributed")
+    (tmp_path / "workers").mkdir()
+    data = tmp_path / "caller" / "mydata"
+    data.mkdir(parents=True)
+    for suffix in (".toml", ".csv"):
+        shutil.copy(DATA_DIR / f"beam1-trial1{suffix}", data)
+    monkeypatch.chdir(tmp_path / "workers")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cluster:
+        monkeypatch.chdir(tmp_path / "caller")
+        rep = run_replication(
+            "out", data_dir="mydata", models=["viscous", "viscous+kv"], settings=TINY,
+            scheduler=cluster.scheduler_address, plots="none", report=False, progress=False,
+            diagnosis={"candidates": ("kv",), "max_rounds": 1, "confirm_top": 1,
+                       "n_elements": 6, "max_steps": 60, "min_steps": 20,
+                       "target_ess": 10.0, "loo_draws": 100})
+    assert rep.diagnosis is not None and rep.diagnosis["trial"] == "beam1-trial1"
+    assert (tmp_path / "caller/out/diagnosis-beam1-trial1/diagnosis.json").is_file()
+    assert set(rep.scores["beam1-trial1"]) == {"viscous", "viscous+kv"}

@@ -173,3 +173,33 @@ def test_dask_worker_processes_identical_to_serial(serial_run, tmp_path):
         # A connected Client is accepted as the scheduler too.
         outcomes = run_fits(tasks, tmp_path, scheduler=client, progress=False)
     assert _numbers(outcomes) == _numbers(first)
+
+
+def test_task_carries_its_trial_and_shows_a_progress_bar(tmp_path, capsys):
+    # The trial file is gone (and the folder too) when the task runs: its data travel
+    # in the task, which is what lets a cluster run it without a shared file system.
+    import shutil
+
+    src = tmp_path / "src"
+    beam = Beam.rectangular(0.3048, 0.127, 1.47e-3, 0.046, E=62e9)
+    simulate_trial(beam, "viscous", {"gamma": 0.1}, duration=0.4, dt=1 / 256,
+                   tip_deflection=0.008, noise_sd=1e-5, seed=4, n_elements=6, name="gone",
+                   out=src / "gone.toml")
+    (task,) = fit_tasks([src / "gone.toml"], ["viscous"], seed=2, settings=TINY)
+    shutil.rmtree(src)
+    assert task.trial is not None and task.trial.sha256 == task.data_sha256
+    record = task.to_dict()
+    assert "trial" not in record and json.dumps(record)  # task.json: no arrays
+    (o,) = run_fits([task], tmp_path / "out", jobs=1, progress=True, stage="tiny fits")
+    assert np.isfinite(o.score["log_evidence"]) and not o.cached
+    # stderr is captured (not a terminal): the bar writes whole lines, the first and the
+    # last at least, naming the stage, the count and the last finished trial and model.
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert lines[0].startswith("tiny fits:") and "0/1" in lines[0]
+    assert lines[-1].startswith("tiny fits: 100%") and "1/1" in lines[-1]
+    assert "gone viscous log Z" in lines[-1]
+    # A task without its data is refused with a message that says how to build one.
+    bare = FitTask(**{**task.__dict__, "trial": None})
+    assert bare.key == task.key  # the key is the SHA-256s, not the data object
+    with pytest.raises(ExecutorError, match="carries no trial data"):
+        run_fits([bare], tmp_path / "out2", jobs=1, progress=False)

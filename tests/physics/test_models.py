@@ -1,6 +1,16 @@
 import pytest
 
-from bayesbeam.physics.models import ModelError, parse_model
+from bayesbeam.physics.forward import initial_names
+from bayesbeam.physics.models import (
+    LAWS,
+    NOISE,
+    NONLINEAR,
+    SIGNAL,
+    STRUCTURAL,
+    ModelError,
+    parameter_units,
+    parse_model,
+)
 
 
 def test_canonical_names_and_parameters():
@@ -34,3 +44,25 @@ def test_drag_and_friction_are_separate_parts():
     assert both.name == "viscous+kv+drag+friction"
     assert both.nonlinear == ("drag", "friction")
     assert both.physical_params == ("E", "gamma", "c_d", "drag", "friction")
+
+
+def test_every_parameter_name_has_a_unit():
+    # Every name a model can sample or report: the parts' parameters, eta (sampled in
+    # place of a), the initial conditions and the noise parameters.
+    names = {n for table in (LAWS, STRUCTURAL, NONLINEAR, NOISE) for ps in table.values()
+             for n in ps}
+    names |= {"eta", "sigma"} | {n for kind in ("release", "impulse", "modes:3")
+                                 for n in initial_names(kind)}
+    for name in sorted(names):
+        unit, meaning = parameter_units(name, "m/s")
+        assert unit and meaning and unit != SIGNAL, name
+    assert parameter_units("E") == ("Pa", "Young's modulus (reference value)")
+    assert parameter_units("c_d")[0] == "Pa s"
+    assert parameter_units("gamma")[0] == "kg/(m s)"
+    assert parameter_units("A2")[0] == parameter_units("B2")[0] == "m"
+    # the signal's unit: only with the trial's quantity
+    assert parameter_units("sigma", "m/s^2")[0] == "m/s^2"
+    assert parameter_units("offset")[0] == SIGNAL
+    with pytest.raises(KeyError, match="no unit known for parameter 'zeta'"):
+        parameter_units("zeta")
+    assert parameter_units("zeta", default=("", "")) == ("", "")

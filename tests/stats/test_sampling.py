@@ -239,7 +239,8 @@ def test_progress_line_only_when_asked(capsys):
     with pytest.warns(NotConvergedWarning):
         run_emcee(log_prob, start(), progress=True, **kw)
     err = capsys.readouterr().err
-    assert "emcee: step 100/100" in err
+    assert "step 100/100" in err and "emcee:" in err  # the bar's last state, named
+    assert "\r" not in err  # stderr is not a terminal here: whole lines for a log
     assert "tau_max" in err
     with pytest.warns(NotConvergedWarning):
         run_emcee(log_prob, start(), progress=None, **kw)  # stderr is not a TTY here
