@@ -58,6 +58,7 @@ import scipy.optimize as sopt
 
 from bayesbeam.diagnosis.diagnose import CATALOGUE, diagnose
 from bayesbeam.inference.problem import BETA1
+from bayesbeam.jobs.executor import make_executor
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.nonlinear import NonlinearForward, nonlinear_damping_scales
 from bayesbeam.stats.likelihood import stationary_ar1
@@ -152,7 +153,8 @@ def make_trial(cause: str, size: float, quantity: str, seed: int = 0) -> tuple[T
 
 def main(small: bool = False, outdir: str | Path | None = None, quantity: str = "displacement",
          seed: int = 0, progress: bool = True, sizes: tuple[float, ...] | None = None,
-         causes: tuple[str, ...] | None = None) -> dict[str, Any]:
+         causes: tuple[str, ...] | None = None, jobs: int | None = 1,
+         scheduler: Any = None) -> dict[str, Any]:
     """Run the benchmark; print and write the table.
 
     Parameters
@@ -171,6 +173,9 @@ def main(small: bool = False, outdir: str | Path | None = None, quantity: str = 
         Size factors (default :data:`SIZES`; ``(1,)`` when small).
     causes : tuple of str, optional
         Causes to run (default the catalogue; two when small).
+    jobs, scheduler : optional
+        Where each diagnosis's candidate fits run (:func:`bayesbeam.jobs.executor.
+        make_executor`: local processes or a Dask cluster); the numbers do not depend on it.
 
     Returns
     -------
@@ -186,25 +191,28 @@ def main(small: bool = False, outdir: str | Path | None = None, quantity: str = 
     md = [f"# Hidden-effect benchmark ({quantity})", "",
           "| cause | size | named | equivalent | Δ log Z ± err | found | time [s] |",
           "|---|---|---|---|---|---|---|"]
-    for cause in causes:
-        for size in sizes:
-            trial, initial, baseline = make_trial(cause, size, quantity, seed)
-            t0 = time.perf_counter()
-            d = diagnose(trial, baseline, seed=seed, max_rounds=1, initial=initial, **budget)
-            sec = time.perf_counter() - t0
-            r = d.rounds[0] if d.rounds else None
-            row = {"cause": cause, "size": size, "named": list(d.named_causes),
-                   "equivalent": list(r.equivalent) if r else [],
-                   "delta_log_evidence": r.delta_log_evidence if r else None,
-                   "delta_log_evidence_err": r.delta_log_evidence_err if r else None,
-                   "found": d.named_causes == (cause,), "seconds": sec}
-            rows.append(row)
-            dz = f"{r.delta_log_evidence:.1f} ± {r.delta_log_evidence_err:.2f}" if r else "–"
-            line = (f"| {cause} | {size:g} | {d.verdict} | {', '.join(row['equivalent']) or '–'} "
-                    f"| {dz} | {'yes' if row['found'] else 'no'} | {sec:.0f} |")
-            md.append(line)
-            if progress:
-                print(line, file=sys.stderr, flush=True)
+    with make_executor(jobs, scheduler) as executor:
+        for cause in causes:
+            for size in sizes:
+                trial, initial, baseline = make_trial(cause, size, quantity, seed)
+                t0 = time.perf_counter()
+                d = diagnose(trial, baseline, seed=seed, max_rounds=1, initial=initial,
+                             executor=executor, **budget)
+                sec = time.perf_counter() - t0
+                r = d.rounds[0] if d.rounds else None
+                row = {"cause": cause, "size": size, "named": list(d.named_causes),
+                       "equivalent": list(r.equivalent) if r else [],
+                       "delta_log_evidence": r.delta_log_evidence if r else None,
+                       "delta_log_evidence_err": r.delta_log_evidence_err if r else None,
+                       "found": d.named_causes == (cause,), "seconds": sec}
+                rows.append(row)
+                dz = f"{r.delta_log_evidence:.1f} ± {r.delta_log_evidence_err:.2f}" if r else "–"
+                eq = ", ".join(row["equivalent"]) or "–"
+                line = (f"| {cause} | {size:g} | {d.verdict} | {eq} "
+                        f"| {dz} | {'yes' if row['found'] else 'no'} | {sec:.0f} |")
+                md.append(line)
+                if progress:
+                    print(line, file=sys.stderr, flush=True)
     found = {c: [r["size"] for r in rows if r["cause"] == c and r["found"]] for c in causes}
     md += ["", "Smallest size found (factor of the reference size): "
            + "; ".join(f"{c} {min(v):g}" if v else f"{c} not found" for c, v in found.items()),
@@ -227,6 +235,9 @@ if __name__ == "__main__":
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--sizes", type=float, nargs="+", default=None)
     ap.add_argument("--causes", nargs="+", default=None, choices=CATALOGUE)
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--scheduler", default=None, help="Dask scheduler address")
     a = ap.parse_args()
     main(small=a.small, outdir=a.outdir, quantity=a.quantity, seed=a.seed,
-         sizes=tuple(a.sizes) if a.sizes else None, causes=tuple(a.causes) if a.causes else None)
+         sizes=tuple(a.sizes) if a.sizes else None, causes=tuple(a.causes) if a.causes else None,
+         jobs=a.jobs, scheduler=a.scheduler)

@@ -82,6 +82,7 @@ from typing import Any
 from bayesbeam.diagnosis.diagnose import diagnose
 from bayesbeam.diagnosis.records import describe_signatures
 from bayesbeam.inference.problem import first_frequency
+from bayesbeam.jobs.executor import make_executor
 from bayesbeam.trials.realdata import load_enes, load_hrshm
 
 #: The records: (label, loader, loader arguments).
@@ -164,7 +165,8 @@ def summarise(label: str, d, seconds: float, length: float) -> str:
 def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
          progress: bool = True, records: list[str] | None = None,
          candidates: list[str] | None = None,
-         max_rounds: int | None = None) -> dict[str, Any]:
+         max_rounds: int | None = None, jobs: int | None = 1,
+         scheduler: Any = None) -> dict[str, Any]:
     """Run the study; print and write its findings.
 
     Parameters
@@ -184,6 +186,9 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
         for the full setting).
     max_rounds : int, optional
         Rounds of the diagnosis (default: the setting's).
+    jobs, scheduler : optional
+        Where each round's candidate fits run (:func:`bayesbeam.jobs.executor.make_executor`:
+        local processes or a Dask cluster); the numbers do not depend on it.
 
     Returns
     -------
@@ -197,24 +202,25 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
     log = (lambda s: print(s, file=sys.stderr, flush=True)) if progress else None
     results: dict[str, Any] = {}
     md = ["# Diagnosis of the public measured data sets", ""]
-    for label in records or cfg["records"]:
-        trial = load(label, cfg["duration"], cfg["dt"])
-        k = n_modes(trial)
-        if log:
-            log(f"{label}: {trial.times.size} samples, initial modes:{k}")
-        t0 = time.perf_counter()
-        kw = dict(cfg["diagnose"])
-        if candidates:
-            kw["candidates"] = tuple(candidates)
-        if max_rounds is not None:
-            kw["max_rounds"] = int(max_rounds)
-        d = diagnose(trial, "viscous+kv", seed=seed, n_elements=cfg["n_elements"],
-                     initial=f"modes:{k}", progress=log, **kw)
-        seconds = time.perf_counter() - t0
-        results[label] = {**d.to_json_dict(), "initial": f"modes:{k}", "seconds_total": seconds}
-        text = summarise(label, d, seconds, trial.beam.length)
-        md.append(text)
-        print(text, flush=True)
+    with make_executor(jobs, scheduler) as executor:
+        for label in records or cfg["records"]:
+            trial = load(label, cfg["duration"], cfg["dt"])
+            k = n_modes(trial)
+            if log:
+                log(f"{label}: {trial.times.size} samples, initial modes:{k}")
+            t0 = time.perf_counter()
+            kw = dict(cfg["diagnose"])
+            if candidates:
+                kw["candidates"] = tuple(candidates)
+            if max_rounds is not None:
+                kw["max_rounds"] = int(max_rounds)
+            d = diagnose(trial, "viscous+kv", seed=seed, n_elements=cfg["n_elements"],
+                         initial=f"modes:{k}", progress=log, executor=executor, **kw)
+            seconds = time.perf_counter() - t0
+            results[label] = {**d.to_json_dict(), "initial": f"modes:{k}", "seconds_total": seconds}
+            text = summarise(label, d, seconds, trial.beam.length)
+            md.append(text)
+            print(text, flush=True)
     (outdir / "real_data.json").write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
     (outdir / "real_data.md").write_text("\n".join(md), encoding="utf-8")
     return {"results": results, "markdown": "\n".join(md),
@@ -230,7 +236,9 @@ if __name__ == "__main__":
     ap.add_argument("--candidates", default=None,
                     help="comma-separated catalogue subset, e.g. tip_mass,added_mass")
     ap.add_argument("--max-rounds", type=int, default=None)
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--scheduler", default=None, help="Dask scheduler address")
     a = ap.parse_args()
     main(small=a.small, outdir=a.outdir, seed=a.seed, records=a.records,
          candidates=a.candidates.split(",") if a.candidates else None,
-         max_rounds=a.max_rounds)
+         max_rounds=a.max_rounds, jobs=a.jobs, scheduler=a.scheduler)

@@ -258,10 +258,10 @@ def plot_mode1_in_time(curves: Any, *, change: Any = None, title: str = "") -> A
             lo = change.time_s - change.time_halfwidth_s
             hi = change.time_s + change.time_halfwidth_s
             ax.axvspan(lo, hi, color="C3", alpha=0.15, label="change of state")
-            ax.hlines([change.levels[before]], t[ok].min(), lo, colors="C0", lw=1.2,
-                      label="level before")
-            ax.hlines([change.levels[after]], hi, t[ok].max(), colors="C1", lw=1.2,
-                      label="level after")
+            ax.hlines([change.levels[before]], *change.levels["before_s"], colors="C0",
+                      lw=1.5, label="level before (its windows)")
+            ax.hlines([change.levels[after]], *change.levels["after_s"], colors="C1", lw=1.5,
+                      label="level after (its windows)")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)

@@ -91,7 +91,8 @@ class StateChange:
     levels : dict
         ``frequency_before_hz``, ``frequency_after_hz``, ``zeta_before``, ``zeta_after``:
         weighted means of the ``side`` windows either side of the (largest) jump, smooth
-        trend included (empty when not tested).
+        trend included; ``before_s``, ``after_s``: the centre times of the first and last
+        of those windows (empty when not tested).
     """
 
     tested: bool
@@ -105,7 +106,7 @@ class StateChange:
     p_value: float | None
     n_windows: int
     reason: str
-    levels: dict[str, float] = field(default_factory=dict)
+    levels: dict[str, Any] = field(default_factory=dict)
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return the result as strict JSON (units in the key names: s, hz)."""
@@ -114,7 +115,8 @@ class StateChange:
         for k in ("time_s", "time_halfwidth_s", "frequency_step_hz", "frequency_step_se",
                   "zeta_step", "zeta_step_se", "p_value"):
             out[k] = finite_or_none(getattr(self, k))
-        out["levels"] = {k: finite_or_none(v) for k, v in self.levels.items()}
+        out["levels"] = {k: ([finite_or_none(x) for x in v] if isinstance(v, list)
+                             else finite_or_none(v)) for k, v in self.levels.items()}
         return out
 
 
@@ -222,7 +224,9 @@ def state_change(curves: Any, *, alpha: float = DEFAULTS["alpha"],
     return StateChange(True, found, tc, half, float(d[0]), float(se[0]), float(d[1]),
                        float(se[1]), p_adj, n, reason,
                        levels={"frequency_before_hz": f_before, "frequency_after_hz": f_after,
-                               "zeta_before": z_before, "zeta_after": z_after})
+                               "zeta_before": z_before, "zeta_after": z_after,
+                               "before_s": [float(t[left[0]]), float(t[left[-1]])],
+                               "after_s": [float(t[right[0]]), float(t[right[-1]])]})
 
 
 def _local_step(a: np.ndarray, y: np.ndarray, s: np.ndarray, a0: float, *,
