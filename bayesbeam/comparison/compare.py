@@ -71,6 +71,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam._util import (
+    SCHEMA_VERSION,
     _in_notebook,
     atomic_path,
     finite_json,
@@ -259,8 +260,8 @@ class Comparison:
         Returns
         -------
         dict
-            ``models``: list of ``{name, n_params, log_evidence, log_evidence_err,
-            elpd_loo, elpd_loo_se, waic, bic, probability, ...}`` (``probability``
+            ``schema_version``; ``models``: list of ``{name, n_params, log_evidence,
+            log_evidence_err, elpd_loo, elpd_loo_se, waic, bic, probability, ...}`` (``probability``
             under the prior odds given, ``probability_equal_odds`` under equal odds;
             more keys are listed in :meth:`_rows`); ``best``; ``indistinguishable``
             (models tied with the best, the best included); ``threshold``;
@@ -269,6 +270,7 @@ class Comparison:
             prior group and factor).
         """
         return finite_json({
+            "schema_version": SCHEMA_VERSION,
             "models": self._rows(),
             "best": self.best,
             "indistinguishable": list(self.indistinguishable),

@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from bayesbeam._util import finite_or_none, interval_digits
+from bayesbeam._util import SCHEMA_VERSION, finite_or_none, interval_digits
 
 __all__ = [
     "CandidateScore",
@@ -247,6 +247,7 @@ class Diagnosis:
             for k, s in (("before", self.signatures_before), ("after", self.signatures_after))
         }
         return {
+            "schema_version": SCHEMA_VERSION,
             "trial": self.trial,
             "baseline": self.baseline,
             "final_model": self.final_model,
@@ -340,7 +341,7 @@ def _size_text(moves: Mapping[str, Any]) -> str:
 def _pm(mean: float, sd: float) -> str:
     """``mean ± sd`` with enough digits in the mean that its ±sd interval shows."""
     d = interval_digits(mean, mean - sd, mean + sd, minimum=4)
-    return f"{mean:.{d}g} ± {sd:.2g}"
+    return f"{mean:#.{d}g} ± {sd:.2g}"
 
 
 def _nan_low(x: float) -> float:

@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam._util import (
+    SCHEMA_VERSION,
     atomic_path,
     distribution_version,
     finite_json,
@@ -346,6 +347,7 @@ class FitResult:
         mt = self.map_theta
         return finite_json(
             {
+                "schema_version": SCHEMA_VERSION,
                 "model": self.model,
                 "posterior": self.summary(),
                 "ess_min": d["ess_min"],

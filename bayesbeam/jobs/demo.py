@@ -308,7 +308,8 @@ def _write_files(folder: Path, files: Mapping[str, bytes], task: Mapping[str, An
     for name, data in files.items():
         with atomic_path(folder / name) as tmp:
             tmp.write_bytes(data)
-    write_text_atomic(folder / "task.json", json.dumps(dict(task), indent=2) + "\n")
+    write_text_atomic(folder / "task.json",
+                      json.dumps({"schema_version": SCHEMA_VERSION, **task}, indent=2) + "\n")
 
 
 # --------------------------------------------------------------------------- overlay

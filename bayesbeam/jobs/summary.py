@@ -13,6 +13,8 @@ import textwrap
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from bayesbeam._util import interval_digits
+
 __all__ = ["beam_of", "beam_summary", "conclusions_text", "format_table"]
 
 #: Parameters shown in the summary table (E in GPa; the rest SI).
@@ -144,8 +146,12 @@ def _modal_damping(recs: Sequence[Mapping[str, Any]], n_modes: int = 2
 def _fmt_param(name: str, v: tuple[float, float, float]) -> str:
     m, sd, sc = v
     if name == "E":
-        return f"{m / 1e9:.3f} ± {sd / 1e9:.2g} [{sc / 1e9:.2g}]"
-    return f"{name} {m:.3g} ± {sd:.2g} [{sc:.2g}]"
+        m, sd, sc = m / 1e9, sd / 1e9, sc / 1e9
+    # Enough digits that the mean's last digit is finer than its sd (52.35996 ± 0.00049,
+    # not 52.360 ± 0.00049).
+    d = interval_digits(m, m - sd, m + sd, minimum=3)
+    text = f"{m:#.{d}g} ± {sd:.2g} [{sc:.2g}]"
+    return text if name == "E" else f"{name} {text}"
 
 
 def format_table(rows: Sequence[Mapping[str, Any]]) -> str:

@@ -26,7 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import file_sha256, finite_json, json_default, write_text_atomic
+from bayesbeam._util import (
+    SCHEMA_VERSION,
+    file_sha256,
+    finite_json,
+    json_default,
+    write_text_atomic,
+)
 from bayesbeam.inference.settings import FIT_DEFAULTS, FitSettings
 
 __all__ = [
@@ -227,6 +233,7 @@ class TaskOutcome:
 
 
 def _dump(path: Path, obj: Any) -> None:
+    obj = {"schema_version": SCHEMA_VERSION, **obj}  # the layout of every JSON output
     text = json.dumps(finite_json(json.loads(json.dumps(obj, default=json_default))), indent=2,
                       allow_nan=False)
     write_text_atomic(path, text + "\n")

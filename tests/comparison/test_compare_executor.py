@@ -95,7 +95,7 @@ def test_job_is_independent_of_order(serial, trial_file):
     job = {"trial": trial, "model": MODELS[-1], "seed": KW["seed"], "priors": None,
            "n_loo_draws": KW["n_loo_draws"], "proposal": "normal",
            "n_proposal": KW["n_proposal"], "settings": TINY, "progress": False, "outdir": None}
-    s = _evaluate_job(job).score
+    s = _evaluate_job(job)
     assert s.log_evidence == serial[MODELS[-1]].log_evidence
     assert s.loo.elpd_loo == serial[MODELS[-1]].loo.elpd_loo
 

@@ -306,6 +306,9 @@ def test_smoke_offset_named_and_cli(tmp_path):
     assert set(out["modes"]) == set(trees)
     assert out["modes"]["viscous"]["modes"][0]["frequency_hz"]["q50"] > 0
     assert (tmp_path / "out" / "zeta_vs_f.png").is_file()
+    jsons = sorted((tmp_path / "out").rglob("*.json"))
+    assert len(jsons) >= 3  # diagnosis.json and the two fits' summary.json
+    assert all(json.loads(p.read_text())["schema_version"] == 1 for p in jsons)
 
 
 def test_bad_input():

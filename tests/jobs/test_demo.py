@@ -68,7 +68,7 @@ def test_beam_summary_adds_evidences_and_applies_the_tie_rule():
     assert sc == pytest.approx(math.sqrt(2) * 2e9)
     assert a["wins"] == 1 and b["wins"] == 1
     text = format_table(rows)
-    assert "beam1" in text and "52.000" in text and "tied with best" in text
+    assert "beam1" in text and "52.00 ± 0.16" in text and "tied with best" in text
 
 
 def test_beam_summary_pools_modal_damping_when_every_trial_has_it():
@@ -122,6 +122,12 @@ def test_tiny_replication_writes_results_report_and_provenance(tiny_run):
     html = (out / "report.html").read_text()
     assert "beam2-trial1" in html and "data:image/png;base64," in html
     assert rep.table in (out / "replication.txt").read_text()
+    # Every JSON output has the schema version; the fits carry f_k, ζ_k and units.
+    jsons = sorted(out.rglob("*.json"))
+    assert all(json.loads(p.read_text())["schema_version"] == 1 for p in jsons), jsons
+    score = json.loads((out / "beam2-trial1/viscous+kv/score.json").read_text())
+    assert score["modes"]["available"] and score["units"]["E"] == "Pa"
+    assert (out / "beam2-trial1/viscous+kv/zeta_vs_f.png").is_file()
 
 
 def test_rerun_reuses_cached_fits(tiny_run):
