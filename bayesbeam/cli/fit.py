@@ -53,6 +53,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from bayesbeam._util import SCHEMA_VERSION
 from bayesbeam.cli import options as opts
 from bayesbeam.inference.settings import FIT_DEFAULTS
 
@@ -225,7 +226,8 @@ def run(args: argparse.Namespace) -> int:
     outdir.mkdir(parents=True, exist_ok=True)
     run_id = getattr(args, "run_id", None)
     write_text_atomic(outdir / "run.json", json.dumps(
-        {"record": record, "argv": sys.argv[1:], "run_id": run_id}, indent=2) + "\n")
+        {"schema_version": SCHEMA_VERSION, "record": record, "argv": sys.argv[1:],
+         "run_id": run_id}, indent=2) + "\n")
     problem = Problem(trial, model, priors, n_elements=args.elements, initial=initial)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)

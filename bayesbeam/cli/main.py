@@ -35,6 +35,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from bayesbeam._util import SCHEMA_VERSION
 from bayesbeam.cli import options as opts
 
 __all__ = ["EXIT", "main"]
@@ -63,7 +64,7 @@ def _parse_sets(items: Sequence[str]) -> dict[str, float]:
 
 def _emit(args: argparse.Namespace, payload: dict[str, Any], text: str) -> None:
     if args.json:
-        print(json.dumps(payload, indent=2, default=float))
+        print(json.dumps({"schema_version": SCHEMA_VERSION, **payload}, indent=2, default=float))
     else:
         print(text)
 
