@@ -333,13 +333,14 @@ class _Progress:
 
     def __init__(self, enabled: bool, max_steps: int, target_ess: float, label: str = "emcee",
                  log_interval: float = 10.0):
+        self.enabled = enabled
         self.target_ess = target_ess
         self.max_steps = max_steps
-        self.bar = progress_bar(
-            max_steps, label, enabled=enabled, unit="step", log_interval=log_interval,
-            bar_format="{desc}: {percentage:3.0f}%|{bar}| step {n_fmt}/{total_fmt} "
-                       "[{elapsed}{postfix}]",
-        )
+        self.label = label
+        self.log_interval = log_interval
+        # Made at the first step, so that a resumed run with nothing left to sample shows
+        # no bar, and a resumed one starts at its own step.
+        self.bar: Any = None
         self._info = ""
         self._ess = math.nan
         self._t0 = time.monotonic()
@@ -364,11 +365,16 @@ class _Progress:
         return f"at most ~{_duration(to_max)} left"
 
     def update(self, step: int, force: bool = False) -> None:
-        if self.bar.disable:
+        if not self.enabled:
             return
-        if self._step0 is None:
+        if self.bar is None:
             self._step0, self._t0 = step - 1, time.monotonic()
-            self.bar.n = self.bar.last_print_n = step - 1  # a resumed run starts there
+            self.bar = progress_bar(
+                self.max_steps, self.label, unit="step", log_interval=self.log_interval,
+                initial=step - 1,
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| step {n_fmt}/{total_fmt} "
+                           "[{elapsed}{postfix}]",
+            )
         post = "  ".join(x for x in (self._info, self._eta(step)) if x)
         self.bar.set_postfix_str(post, refresh=False)
         if force:
@@ -378,7 +384,8 @@ class _Progress:
             self.bar.update(step - self.bar.n)  # tqdm throttles the redraws
 
     def close(self) -> None:
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _duration(seconds: float) -> str:
