@@ -58,6 +58,8 @@ __all__ = [
     "lazy_exports",
     "one_blas_thread",
     "progress_bar",
+    "progress_note",
+    "stderr_is_live",
     "read_toml",
     "write_text_atomic",
 ]
@@ -425,6 +427,27 @@ def progress_bar(total: float | None, desc: str, *, enabled: bool = True, unit: 
     opts.update(kwargs)
     return bar_class(total=total, desc=desc, unit=unit, file=stream, disable=not enabled,
                      leave=True, **opts)
+
+
+def stderr_is_live() -> bool:
+    """Tell whether progress shows live: stderr is a terminal, or this runs in Jupyter."""
+    return bool(getattr(sys.stderr, "isatty", lambda: False)()) or _in_notebook()
+
+
+def progress_note(bar: Any, text: str) -> None:
+    """Show ``text`` (the current model, trial, last result) beside a progress bar.
+
+    On a terminal or in Jupyter it shows at once; in a log (stderr a file or a pipe) the
+    next throttled line carries it, since a line per note would defeat the interval of
+    :func:`progress_bar`.
+
+    Parameters
+    ----------
+    bar : tqdm.tqdm
+        From :func:`progress_bar`.
+    text : str
+    """
+    bar.set_postfix_str(text, refresh=stderr_is_live())
 
 
 # --------------------------------------------------------------------------- intervals

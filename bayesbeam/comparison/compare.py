@@ -61,7 +61,6 @@ import contextlib
 import html
 import json
 import math
-import sys
 import threading
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -72,11 +71,12 @@ import numpy as np
 
 from bayesbeam._util import (
     SCHEMA_VERSION,
-    _in_notebook,
     atomic_path,
     finite_json,
     one_blas_thread,
     progress_bar,
+    progress_note,
+    stderr_is_live,
     write_text_atomic,
 )
 from bayesbeam.comparison.scoring import CompareError, ModelScore, evaluate
@@ -97,27 +97,6 @@ __all__ = [
     "compare",
     "compare_scores",
 ]
-
-
-def _stderr_is_live() -> bool:
-    """Tell whether progress shows live: stderr is a terminal, or this runs in Jupyter."""
-    return bool(getattr(sys.stderr, "isatty", lambda: False)()) or _in_notebook()
-
-
-def _progress_note(bar: Any, text: str) -> None:
-    """Show ``text`` (the current model, trial, last result) beside a progress bar.
-
-    On a terminal or in Jupyter it shows at once; in a log (stderr a file or a pipe) the
-    next throttled line carries it, since a line per note would defeat the interval of
-    :func:`bayesbeam._util.progress_bar`.
-
-    Parameters
-    ----------
-    bar : tqdm.tqdm
-        From :func:`bayesbeam._util.progress_bar`.
-    text : str
-    """
-    bar.set_postfix_str(text, refresh=_stderr_is_live())
 
 
 #: One fit job at a time per process (re-entrant: a diagnosis job runs fits itself). The
@@ -752,23 +731,23 @@ def compare(
                     else str(Path(outdir) / m.name))}
         for m in parsed
     ]
-    show = _stderr_is_live() if progress is None else bool(progress)
+    show = stderr_is_live() if progress is None else bool(progress)
     bar = progress_bar(len(jobs), f"compare {trial.name}", enabled=show, unit="model")
     scores: list[ModelScore] = []
     try:
         if executor is None:
             for job in jobs:
-                _progress_note(bar, f"fitting {job['model']}")
+                progress_note(bar, f"fitting {job['model']}")
                 scores.append(_evaluate_job(job))
-                _progress_note(bar, f"{job['model']} done")
+                progress_note(bar, f"{job['model']} done")
                 bar.update(1)
         else:
             # map yields in input order: the note names the model awaited next.
-            _progress_note(bar, f"fitting {len(jobs)} models; waiting for {jobs[0]['model']}")
+            progress_note(bar, f"fitting {len(jobs)} models; waiting for {jobs[0]['model']}")
             for i, score in enumerate(executor.map(_evaluate_job, jobs)):
                 scores.append(score)
                 nxt = f"; waiting for {jobs[i + 1]['model']}" if i + 1 < len(jobs) else ""
-                _progress_note(bar, f"{score.name} done{nxt}")
+                progress_note(bar, f"{score.name} done{nxt}")
                 bar.update(1)
     finally:
         bar.close()

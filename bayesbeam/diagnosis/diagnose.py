@@ -117,8 +117,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import progress_bar
-from bayesbeam.comparison.compare import _progress_note
+from bayesbeam._util import progress_bar, progress_note
 
 # The records (and the text of the signatures, which their narrative uses) are re-exported.
 from bayesbeam.diagnosis.records import CandidateScore, Diagnosis, Round
@@ -439,7 +438,7 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
         cause, st = screened[i]
         scores[cause].update(gain=st.ll - cur.ll, seconds=seconds)
         log(f"  round {index} screen {cause}: Δχ²/2 = {st.ll - cur.ll:.2f} ({seconds:.1f} s)")
-        _progress_note(bar, f"{st.problem.model.name} done")
+        progress_note(bar, f"{st.problem.model.name} done")
         bar.update(1)
 
     try:
@@ -480,7 +479,7 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
                            f"diagnose round {index}: sampling", unit="model", enabled=show)
 
         def sampled_one(st: _State) -> None:
-            _progress_note(bar, f"{st.problem.model.name} done")
+            progress_note(bar, f"{st.problem.model.name} done")
             bar.update(1)
 
         try:

@@ -286,9 +286,9 @@ class _Progress:
         self.t_start = time.perf_counter()
 
     def note(self, text: str) -> None:
-        from bayesbeam.comparison.compare import _progress_note
+        from bayesbeam._util import progress_note
 
-        _progress_note(self.bar, text)
+        progress_note(self.bar, text)
 
     def finished(self, o: TaskOutcome) -> None:
         self.done += 1

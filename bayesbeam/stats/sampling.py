@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import math
 import signal
-import sys
 import threading
 import time
 import warnings
@@ -61,7 +60,7 @@ from typing import Any
 import emcee
 import numpy as np
 
-from bayesbeam._util import _in_notebook, progress_bar
+from bayesbeam._util import progress_bar, stderr_is_live
 from bayesbeam.stats.checkpoint import CheckpointBackend, SamplingError, open_checkpoint
 from bayesbeam.stats.convergence import Check, autocorr_time, check_convergence, failed_criteria
 from bayesbeam.stats.priors import PriorSet
@@ -652,7 +651,7 @@ def run_emcee(
     if len(names) != ndim or len(set(names)) != ndim:
         raise SamplingError(f"need {ndim} distinct names, got {names!r}")
     if progress is None:
-        progress = bool(getattr(sys.stderr, "isatty", lambda: False)()) or _in_notebook()
+        progress = stderr_is_live()
 
     path = None if backend_path is None else Path(backend_path)
     prior_calls, prior_seconds = 0, 0.0
