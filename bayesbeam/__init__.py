@@ -39,6 +39,8 @@ _EXPORTS = {
     # inference
     "Problem": "bayesbeam.inference.problem",
     "fit": "bayesbeam.inference.fit",
+    "fit_joint": "bayesbeam.inference.joint_fit",
+    "compare_joint": "bayesbeam.comparison.joint",
     "FitResult": "bayesbeam.inference.results",
     # comparison, diagnosis, report
     "compare": "bayesbeam.comparison.compare",

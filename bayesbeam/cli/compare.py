@@ -1,5 +1,8 @@
 """``bayesbeam compare``: fit several models to one trial and rank them.
 
+Several trials (with ``--shared`` / ``--pooled``): which parameters they share, see
+:mod:`bayesbeam.cli.compare_joint`.
+
 Writes into ``OUTDIR``: ``comparison.json`` (strict JSON), ``comparison.txt`` (the
 table), ``comparison.html``, ``comparison.png`` (log evidence with error bars and
 ELPD differences), ``zeta_vs_f.png`` (each model's modal damping ratio against
@@ -108,7 +111,8 @@ def register(subparsers: Any) -> None:
             "indistinguishable."
         ),
     )
-    opts.add_trial_argument(sp)
+    sp.add_argument("trial", type=Path, nargs="+",
+                    help="trial TOML file; several: compare what they share (--shared)")
     sp.add_argument("--models", default=DEFAULT_MODELS,
                     help=f"comma-separated model names (default {DEFAULT_MODELS})")
     opts.add_outdir_seed_options(sp)
@@ -128,6 +132,13 @@ def register(subparsers: Any) -> None:
                     help="posterior draws for the pointwise log-likelihood (LOO, WAIC)")
     opts.add_executor_options(sp)
     opts.add_json_option(sp)
+    joint = sp.add_argument_group(
+        "several trials", "joint variants of each model (bayesbeam.comparison.joint): as "
+        "asked, without the pooling, and with nothing shared")
+    joint.add_argument("--shared", default=None, metavar="NAMES",
+                       help="comma-separated parameters common to all trials, e.g. E")
+    joint.add_argument("--pooled", default=None, metavar="NAMES",
+                       help="comma-separated parameters drawn from a log-normal population")
     sp.set_defaults(func=run)
 
 
@@ -159,6 +170,12 @@ def run(args: argparse.Namespace) -> int:
     if args.max_steps < 1 or args.loo_draws < 2 or not args.target_ess > 0:
         raise CompareCLIError("--max-steps, --target-ess must be positive, --loo-draws >= 2")
     opts.check_options(args, CompareCLIError, *opts.PREPROCESSING)
+    trials = args.trial if isinstance(args.trial, list) else [args.trial]
+    if len(trials) > 1 or args.shared or args.pooled:
+        from bayesbeam.cli.compare_joint import run_joint
+
+        return run_joint(args, models, CompareCLIError)
+    args.trial = trials[0]
     trial, pre = opts.prepare_trial(args, CompareCLIError, say=opts.say)
     odds = parse_prior_odds(args.prior_odds, models)
     models = [pre.model_name(m) for m in models]

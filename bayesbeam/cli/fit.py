@@ -2,7 +2,8 @@
 
 ::
 
-    bayesbeam fit TRIAL.toml --model M -o OUTDIR [--seed S] [--json] [--resume]
+    bayesbeam fit TRIAL.toml [TRIAL2.toml ...] --model M -o OUTDIR [--seed S] [--json] [--resume]
+        [--shared E,...] [--pooled c_d,...] [--no-marginalise]
         [--priors PRIORS.toml] [--elements N] [--target-ess X] [--max-steps N]
         [--initial release|impulse|modes:K] [--decimate Q | --resample DT]
         [--window T0 T1]
@@ -37,6 +38,9 @@ Output: the summary table (or, with ``--json``, the record of
 command), ``modes``, diagnostics, MAP, priors, settings and provenance). A run that stops at
 ``--max-steps`` before converging prints ``WARNING: ... NOT CONVERGED: <reason>`` on
 stderr and still exits 0 with all files written.
+
+Several trials (or ``--shared`` / ``--pooled``): a joint fit, see
+:mod:`bayesbeam.cli.fit_joint`.
 
 Preprocessing order: the window is applied first, so no data outside it reaches the
 fit through the decimation filter (:meth:`bayesbeam.trials.trial.Trial.decimate` drops the
@@ -83,7 +87,8 @@ def register(subparsers: Any) -> None:
             "residual_spectrum.png to OUTDIR. SI units throughout."
         ),
     )
-    opts.add_trial_argument(sp, help="trial TOML file (see data/README.md)")
+    sp.add_argument("trial", type=Path, nargs="+",
+                    help="trial TOML file (see data/README.md); several: a joint fit")
     sp.add_argument("--model", required=True,
                     help="damping laws and extensions joined by '+', e.g. viscous+kv")
     opts.add_outdir_seed_options(sp)
@@ -100,6 +105,18 @@ def register(subparsers: Any) -> None:
                     help=f"emcee step budget (default {FIT_DEFAULTS.max_steps})")
     opts.add_preprocessing_options(sp)
     opts.add_json_option(sp, help="print the summary as JSON")
+    joint = sp.add_argument_group(
+        "joint fit of several trials",
+        "one model on every trial given (bayesbeam.inference.joint); every parameter not "
+        "named here is per trial, named NAME[TRIAL] in the output")
+    joint.add_argument("--shared", default=None, metavar="NAMES",
+                       help="comma-separated parameters common to all trials, e.g. E")
+    joint.add_argument("--pooled", default=None, metavar="NAMES",
+                       help="comma-separated positive parameters drawn per trial from a "
+                            "log-normal population (median and spread sampled), e.g. c_d,gamma")
+    joint.add_argument("--no-marginalise", action="store_true",
+                       help="sample each trial's sigma and initial amplitudes instead of "
+                            "integrating them out in closed form")
     sp.set_defaults(func=run)
 
 
@@ -196,6 +213,15 @@ def run(args: argparse.Namespace) -> int:
     """
     t_start = time.perf_counter()
     _check_args(args)
+    trials = args.trial if isinstance(args.trial, list) else [args.trial]
+    if len(trials) > 1 or args.shared or args.pooled:
+        from bayesbeam.cli.fit_joint import run_joint
+
+        return run_joint(args, FitCLIError)
+    if args.no_marginalise:
+        raise FitCLIError("--no-marginalise applies to joint fits (several trials, --shared "
+                          "or --pooled); a single fit samples sigma and the amplitudes")
+    args.trial = trials[0]
     import numpy as np
 
     from bayesbeam._util import write_text_atomic

@@ -1,7 +1,8 @@
 """Several models on one trial: evidences, criteria, verdicts, prior sensitivity.
 
 Several models on one trial: evidences, criteria, verdicts and prior sensitivity
-(``bayesbeam.comparison.compare.compare``).
+(``bayesbeam.comparison.compare.compare``); joint variants of one model on several
+trials, which parameters they share (:func:`compare_joint`).
 
 Layer: above :mod:`bayesbeam.inference`.
 """
@@ -9,7 +10,11 @@ Layer: above :mod:`bayesbeam.inference`.
 from bayesbeam._util import lazy_exports
 
 _EXPORTS = {
+    "compare_joint": ".joint",
     "compare_scores": ".compare",
+    "JointComparison": ".joint",
+    "JointScore": ".joint",
+    "score_joint": ".joint",
     "CompareError": ".scoring",
     "Comparison": ".compare",
     "evaluate": ".scoring",

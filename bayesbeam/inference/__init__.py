@@ -3,7 +3,8 @@
 One model on one trial: the log posterior (:class:`Problem`), MAP and emcee
 posterior (``bayesbeam.inference.fit.fit``), its settings and their defaults
 (:class:`FitSettings`), the :class:`FitResult` record, and posterior-predictive draws
-(:func:`posterior_predictive`).
+(:func:`posterior_predictive`); one model on several trials with shared and pooled
+parameters (:class:`JointProblem`, ``fit_joint``).
 
 Layer: above :mod:`bayesbeam.trials`.
 """
@@ -24,6 +25,11 @@ _EXPORTS = {
     "FitError": ".fit",
     "FitResult": ".results",
     "FitSettings": ".settings",
+    "fit_joint": ".joint_fit",
+    "JointError": ".joint",
+    "JointFit": ".joint_fit",
+    "JointProblem": ".joint",
+    "PoolCoordinates": ".joint",
     "diagonal_sd": ".fit",
     "laplace_covariance": ".fit",
     "walker_scale": ".fit",

@@ -30,7 +30,7 @@ from scipy.special import logsumexp
 
 from bayesbeam.inference.adequacy import assess
 from bayesbeam.inference.mesh import converge_mesh
-from bayesbeam.inference.problem import BETA1, Problem, record_f1
+from bayesbeam.inference.problem import BETA1, Problem, amplitude_names, record_f1
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
@@ -61,8 +61,7 @@ class FitError(ValueError):
 
 
 def _linear_names(problem: Problem) -> list[str]:
-    init = [n for n in problem.names if n in ("w0", "p0") or n[:1] in "AB" and n[1:].isdigit()]
-    return init + (["offset"] if "offset" in problem.names else [])
+    return amplitude_names(problem.names) + (["offset"] if "offset" in problem.names else [])
 
 
 def profile_linear(problem: Problem, X: np.ndarray) -> np.ndarray:
@@ -436,6 +435,28 @@ class SamplerCoordinates:
         self.group = np.array(idx if len(idx) >= 2 else [], dtype=int)
         self.c = np.log([scale[problem.names[j]] for j in self.group])
 
+    @classmethod
+    def on_columns(cls, group: Any, c: Any) -> SamplerCoordinates:
+        """Make the same map on other columns (e.g. one trial's laws inside a joint fit).
+
+        Parameters
+        ----------
+        group : sequence of int
+            Columns of the laws (two or more).
+        c : sequence of float
+            Their log first-mode damping ratio per unit parameter (as ``self.c``).
+
+        Returns
+        -------
+        SamplerCoordinates
+        """
+        out = cls.__new__(cls)
+        out.group = np.asarray(group, dtype=int)
+        out.c = np.asarray(c, dtype=float)
+        if out.group.size == 1 or out.group.shape != out.c.shape:
+            raise ValueError("on_columns needs two or more columns and one scale per column")
+        return out
+
     @property
     def identity(self) -> bool:
         """True when the sampler works in ``u`` itself."""
@@ -475,6 +496,53 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     if bad:
         raise FitError(f"unknown sampler_options {bad}; allowed: {list(_SAMPLER_OPTIONS)}")
     return opts
+
+
+def checkpoint_path(outdir: str | Path | None, resume: bool) -> Path | None:
+    """Return the sampler checkpoint ``OUTDIR/chain.h5`` (made ready), or None without a folder.
+
+    Parameters
+    ----------
+    outdir : path or None
+    resume : bool
+        False: an old checkpoint there is deleted (a new run starts).
+
+    Returns
+    -------
+    pathlib.Path or None
+    """
+    if outdir is None:
+        return None
+    Path(outdir).mkdir(parents=True, exist_ok=True)
+    backend = Path(outdir) / "chain.h5"
+    if backend.exists() and not resume:
+        backend.unlink()
+    return backend
+
+
+def chain_in_u(chain: Chain, u_samples: np.ndarray, log_prob: np.ndarray | None = None) -> Chain:
+    """Return the chain moved back from the sampler's coordinates to the sampling space ``u``.
+
+    Convergence was judged in the sampler's coordinates; τ, ESS and R-hat are reported
+    for the parameters themselves, with the estimators of the stopping rule (tol 0: τ
+    as estimated, no length requirement here).
+
+    Parameters
+    ----------
+    chain : Chain
+    u_samples : ndarray, shape (nsteps, nwalkers, ndim)
+    log_prob : ndarray, shape (nsteps, nwalkers), optional
+        The log density in ``u`` where the map's Jacobian is not 1.
+
+    Returns
+    -------
+    Chain
+    """
+    tau, _ = autocorr_time(u_samples, 0.0)
+    ess, rhat = ess_rhat(u_samples)
+    lp = chain.log_prob if log_prob is None else log_prob
+    return dataclasses.replace(chain, samples=u_samples, log_prob=lp, tau=tau, ess=ess,
+                               rhat=rhat)
 
 
 @single_blas_thread
@@ -569,12 +637,7 @@ def fit(
 
     def log_prob_v(V: np.ndarray) -> np.ndarray:
         return problem.log_prob(coords.to_u(V))  # unit Jacobian: see SamplerCoordinates
-    backend = None
-    if outdir is not None:
-        Path(outdir).mkdir(parents=True, exist_ok=True)
-        backend = Path(outdir) / "chain.h5"
-        if backend.exists() and not resume:
-            backend.unlink()
+    backend = checkpoint_path(outdir, resume)
     chain: Chain = run_emcee(
         log_prob_v,
         coords.to_v(u0),
@@ -592,14 +655,7 @@ def fit(
         **sampler_kw,
     )
     if not coords.identity:
-        # Back to u. Convergence was judged in the sampler's coordinates; τ, ESS and
-        # R-hat are reported for the parameters themselves.
-        u_samples = coords.to_u(chain.samples)
-        # Same estimators as the sampler's stopping rule (tol 0: τ as estimated, no
-        # length requirement here; that was judged in the sampler's coordinates).
-        tau, _ = autocorr_time(u_samples, 0.0)
-        ess, rhat = ess_rhat(u_samples)
-        chain = dataclasses.replace(chain, samples=u_samples, tau=tau, ess=ess, rhat=rhat)
+        chain = chain_in_u(chain, coords.to_u(chain.samples))
     samples = chain.samples
     X = problem.theta(samples.reshape(-1, ndim))
     derived = {k: v.reshape(samples.shape[:2]) for k, v in problem.derived(X).items()}

@@ -46,7 +46,8 @@ from bayesbeam.stats.priors import PriorSet
 from bayesbeam.trials.trial import _SI_UNIT, Trial
 
 __all__ = [
-    "BETA1", "POINTWISE_BATCH", "Problem", "default_priors", "first_frequency", "record_f1",
+    "BETA1", "POINTWISE_BATCH", "Problem", "amplitude_names", "default_priors",
+    "first_frequency", "record_f1",
     "reference_modulus",
 ]
 
@@ -198,6 +199,25 @@ def reference_modulus(trial: Trial, *, n_elements: int = 16) -> float:
                               eigvals_only=True)[0])
         lo, hi = (mid, hi) if w1 < w_data else (lo, mid)
     return float(np.sqrt(lo * hi))
+
+
+def amplitude_names(names: tuple[str, ...] | list[str]) -> list[str]:
+    """Initial-condition amplitudes among sampled names (``w0``, ``p0``, ``A_k``, ``B_k``).
+
+    The forward response is linear in them (a free vibration scales with its initial
+    state), which :func:`bayesbeam.inference.fit.profile_linear` and the marginal
+    likelihood of :mod:`bayesbeam.inference.joint` use.
+
+    Parameters
+    ----------
+    names : sequence of str
+
+    Returns
+    -------
+    list of str
+        In the order of ``names``.
+    """
+    return [n for n in names if n in ("w0", "p0") or (n[:1] in "AB" and n[1:].isdigit())]
 
 
 def _sampled_names(fwd_names: tuple[str, ...], model: Model) -> tuple[str, ...]:
@@ -546,11 +566,24 @@ class Problem:
 
     def log_likelihood(self, U: np.ndarray) -> np.ndarray:
         """Log likelihood, shape (k,); -inf for invalid sets."""
-        U = np.atleast_2d(U)
-        X = self.theta(U)
+        return self.log_likelihood_theta(self.theta(np.atleast_2d(U)))
+
+    def log_likelihood_theta(self, X: np.ndarray) -> np.ndarray:
+        """Log likelihood at physical sampled values (output of :meth:`theta`), shape (k,).
+
+        Parameters
+        ----------
+        X : ndarray, shape (k, ndim)
+
+        Returns
+        -------
+        ndarray, shape (k,)
+            ``-inf`` for sets the forward model marks invalid.
+        """
+        X = np.atleast_2d(X)
         res = self.predict(X)
-        self.n_calls += U.shape[0]
-        out = np.full(U.shape[0], -np.inf)
+        self.n_calls += X.shape[0]
+        out = np.full(X.shape[0], -np.inf)
         v = res.valid
         if np.any(v):
             r = self.data[None, :] - res.y[v]
@@ -607,13 +640,6 @@ class Problem:
 
         ``log_prior_u(U) + log_likelihood(U)``; its integral over u is the evidence.
         """
-        U = np.atleast_2d(U)
-        lp = self.priors.log_prior_u(U)
-        out = np.full(U.shape[0], -np.inf)
-        ok = np.isfinite(lp)
-        if np.any(ok):
-            out[ok] = lp[ok] + self.log_likelihood(U[ok])
-        out[np.isnan(out)] = -np.inf
-        return out
+        return self.priors.log_posterior_u(U, self.log_likelihood)
 
     __call__ = log_prob

@@ -107,6 +107,20 @@ def parameter_units(
     KeyError
         For a name not in the table, without ``default``.
     """
+    if name.endswith("]") and "[" in name:
+        # A joint fit's per-trial name, NAME[TRIAL] (bayesbeam.inference.joint).
+        base, label = name[:-1].split("[", 1)
+        if base.endswith("_z"):
+            return "1", f"standardised deviate of {base[:-2]} of trial {label} (population)"
+        unit, meaning = parameter_units(base, signal_unit, default=default or ("", ""))
+        return unit, (f"{meaning} (trial {label})" if meaning else "")
+    for suffix, what in (("_median", "population median of"), ("_spread", "population sd of "
+                                                                "the log of")):
+        if name.endswith(suffix) and name[: -len(suffix)] in PARAMETER_UNITS:
+            unit, meaning = PARAMETER_UNITS[name[: -len(suffix)]]
+            if suffix == "_spread":
+                return "1", f"{what} {name[: -len(suffix)]} over the trials"
+            return unit, f"{what} {name[: -len(suffix)]} over the trials ({meaning})"
     if name[:1] in ("A", "B") and name[1:].isdigit():
         what = "displacement" if name[0] == "A" else "velocity/omega"
         return "m", f"{what} amplitude of mode {name[1:]} at the sensor (initial condition)"

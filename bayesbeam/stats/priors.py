@@ -158,6 +158,32 @@ class PriorSet(Mapping[str, Prior]):
             out = out + p.log_pdf_u(U[..., j])
         return out
 
+    def log_posterior_u(self, U: Any, log_likelihood: Any) -> np.ndarray:
+        """Unnormalised log posterior ``log_prior_u(U) + log_likelihood(U)``, shape (k,).
+
+        The likelihood is evaluated only at points inside the prior's support; NaN
+        becomes ``-inf`` (a density of zero, never a number that poisons a sampler).
+        Its integral over ``u`` is the evidence.
+
+        Parameters
+        ----------
+        U : array_like, shape (k, ndim)
+        log_likelihood : callable
+            ``(m, ndim) -> (m,)``, vectorised.
+
+        Returns
+        -------
+        ndarray, shape (k,)
+        """
+        U = np.atleast_2d(np.asarray(U, dtype=float))
+        lp = self.log_prior_u(U)
+        out = np.full(U.shape[0], -np.inf)
+        ok = np.isfinite(lp)
+        if np.any(ok):
+            out[ok] = lp[ok] + log_likelihood(U[ok])
+        out[np.isnan(out)] = -np.inf
+        return out
+
     def to_theta(self, U: Any) -> np.ndarray:
         """Map sampling-space points to physical parameter values.
 

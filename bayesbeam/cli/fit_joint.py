@@ -1,0 +1,195 @@
+"""``bayesbeam fit T1.toml T2.toml ... --shared E [--pooled c_d]``: one model on several trials.
+
+The joint path of ``bayesbeam fit`` (:func:`bayesbeam.inference.joint_fit.fit_joint`): taken
+when more than one trial is given, or ``--shared`` / ``--pooled``. Each trial is read and
+prepared as for a single fit (window, decimation, the sanity checks). Writes into OUTDIR:
+
+==========================  ===========================================================
+``summary.json``            joint summary: ``posterior`` (shared names as in a single
+                            fit, per-trial names ``NAME[TRIAL]``, population
+                            ``NAME_median`` / ``NAME_spread``), diagnostics, ``joint``
+                            (labels, shared, pooled, marginalised), ``adequate`` and
+                            ``trials`` (per label: trial, adequacy, posterior)
+``posterior.nc``            ArviZ tree with a ``trial`` dimension (see
+                            :meth:`~bayesbeam.inference.joint_fit.JointFit.to_inference_data`)
+``corner.png``              corner plot of the shared and population parameters
+``trace.png``               walker traces of every sampled parameter
+``fit_TRIAL.png``           per trial: data, predictive band, residuals
+``run.json``                the options of the run
+``chain.h5``                emcee checkpoint (``--resume`` continues it)
+==========================  ===========================================================
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+from bayesbeam._util import SCHEMA_VERSION
+from bayesbeam.cli import options as opts
+
+__all__ = ["run_joint", "split_names"]
+
+
+def split_names(text: str | None) -> tuple[str, ...]:
+    """Names of a comma-separated option value (``"E,c_d"`` -> ``("E", "c_d")``)."""
+    if not text:
+        return ()
+    return tuple(n.strip() for n in text.split(",") if n.strip())
+
+
+def _file_label(label: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", label)
+
+
+def _plot_corner(result: Any, names: list[str], path: Path) -> Path | None:
+    """Corner plot of the named sampled parameters (physical values), or None if none."""
+    import corner
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from bayesbeam._util import fmt_interval
+
+    cols = [result.names.index(n) for n in names if n in result.names]
+    if not cols:
+        return None
+    flat = result.theta_samples().reshape(-1, result.chain.ndim)[:, cols]
+    nd = len(cols)
+    fig = Figure(figsize=(2.2 * nd + 1, 2.2 * nd + 1))
+    if nd == 1:
+        ax = fig.subplots()
+        ax.hist(flat[:, 0], bins=40, color="0.4")
+        q = np.quantile(flat[:, 0], [0.05, 0.5, 0.95])
+        for v in q:
+            ax.axvline(v, color="k", ls="--", lw=0.8)
+        ax.set_xlabel(result.names[cols[0]])
+        mid, lo, hi = fmt_interval(q[1], q[0], q[2])
+        ax.set_title(f"{result.names[cols[0]]} = {mid} [{lo}, {hi}] (90 %)", fontsize=9)
+    else:
+        corner.corner(flat, labels=[result.names[j] for j in cols],
+                      quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".4g", fig=fig)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
+    """Execute the joint path of ``bayesbeam fit`` (see the module docstring).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options of ``bayesbeam fit`` (``trial`` is a list of paths).
+    error : type of Exception
+        The command's error class.
+
+    Returns
+    -------
+    int
+        0 on success (also when not converged or inadequate: a warning line says so).
+    """
+    t_start = time.perf_counter()
+    import numpy as np
+
+    from bayesbeam._util import write_text_atomic
+    from bayesbeam.cli.outdir import stamp
+    from bayesbeam.inference.joint import JointError
+    from bayesbeam.inference.joint_fit import fit_joint
+    from bayesbeam.inference.predictive import PPC_DRAWS, posterior_predictive
+    from bayesbeam.physics.models import parse_model
+    from bayesbeam.report.plots import plot_fit
+    from bayesbeam.stats.sampling import NotConvergedWarning
+
+    if args.priors is not None:
+        raise error("--priors is not supported with several trials yet; the joint fit uses "
+                    "each trial's default priors (fit one trial to override them)")
+    parse_model(args.model)
+    paths = list(args.trial)
+    if len({p.resolve() for p in paths}) != len(paths):
+        raise error(f"a trial is given twice in {[str(p) for p in paths]}; give each once")
+    trials, pres, models = [], [], set()
+    for p in paths:
+        one = argparse.Namespace(**{**vars(args), "trial": p})
+        trial, pre = opts.prepare_trial(one, error, say=opts.say)
+        trials.append(trial)
+        pres.append(pre)
+        models.add(pre.model_name(args.model))
+    if len(models) != 1:
+        raise error(f"the preprocessing gives the trials different models {sorted(models)} "
+                    "(a sensor offset added to some); fit them with the same --model")
+    model = parse_model(models.pop())
+    initials = {pre.initial for pre in pres}
+    if len(initials) != 1:
+        raise error(f"the trials need different initial conditions {sorted(initials)}; "
+                    "give --initial")
+    initial = initials.pop()
+    shared, pooled = split_names(args.shared), split_names(args.pooled)
+    outdir = Path(args.outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    record = {"trial_sha256": [t.sha256 for t in trials], "model": model.name,
+              "shared": list(shared), "pooled": list(pooled),
+              "marginalise": not args.no_marginalise, "seed": int(args.seed),
+              "n_elements": int(args.elements), "initial": initial}
+    run_path = outdir / "run.json"
+    if args.resume and run_path.is_file():
+        old = json.loads(run_path.read_text(encoding="utf-8")).get("record", {})
+        diff = sorted(k for k in record if json.dumps(old.get(k)) != json.dumps(record[k]))
+        if diff:
+            raise error(f"--resume: options {diff} differ from the run in {outdir}; repeat the "
+                        "original options, or drop --resume to start over")
+    write_text_atomic(run_path, json.dumps({"schema_version": SCHEMA_VERSION, "record": record,
+                                            "argv": sys.argv[1:]}, indent=2) + "\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", NotConvergedWarning)
+        try:
+            jf = fit_joint(trials, model, shared=shared, pooled=pooled,
+                           marginalise=not args.no_marginalise, initial=initial, outdir=outdir,
+                           resume=args.resume, progress=True, **opts.fit_settings(args))
+        except JointError as exc:
+            raise error(str(exc)) from None
+    for w in caught:
+        if not issubclass(w.category, NotConvergedWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    reasons = [str(w.message) for w in caught if issubclass(w.category, NotConvergedWarning)]
+    rng = np.random.default_rng([args.seed, 1])
+    tree = jf.to_inference_data(rng=rng)
+    tree.to_netcdf(outdir / "posterior.nc")
+    payload = jf.to_json_dict()
+    payload.update(stamp(args, provenance=False))
+    payload["preprocessing"] = {lb: pre.to_json_dict() for lb, pre in zip(jf.labels, pres,
+                                                                           strict=True)}
+    jp = jf.problem
+    top = [*jp.shared, *(f"{n}_{s}" for n in jp.pooled for s in ("median", "spread"))]
+    _plot_corner(jf.result, top, outdir / "corner.png")
+    jf.result.plot_trace(outdir / "trace.png")
+    figures = []
+    for lb, view, trial in zip(jf.labels, jf.trials, trials, strict=True):
+        pb = view.problem
+        _, y_model, y_rep = posterior_predictive(pb, view, PPC_DRAWS, rng)
+        path = outdir / f"fit_{_file_label(lb)}.png"
+        plot_fit(trial, pb, view, path, rng=rng, draws=(y_model, y_rep))
+        figures.append(path.name)
+    payload["figures"] = ["corner.png", "trace.png", *figures]
+    payload["total_seconds"] = time.perf_counter() - t_start
+    payload["outdir"] = str(outdir)
+    write_text_atomic(outdir / "summary.json", json.dumps(payload, indent=2, allow_nan=False)
+                      + "\n")
+    if args.json:
+        opts.print_json(payload)
+    else:
+        print(jf)
+        print(f"results in {outdir}/ (posterior.nc, summary.json, corner.png, trace.png, "
+              f"{', '.join(figures)}); {payload['total_seconds']:.1f} s in total")
+    if not jf.result.chain.converged:
+        why = reasons[0] if reasons else "convergence criteria not met"
+        print(f"WARNING: joint {model.name}: NOT CONVERGED: {why}", file=sys.stderr)
+    if not jf.ok:
+        bad = [lb for lb, v in zip(jf.labels, jf.trials, strict=True) if not v.adequacy.get("ok")]
+        print(f"WARNING: joint {model.name}: the model does not reproduce {bad} to their noise "
+              "(see summary.json trials.*.adequacy)", file=sys.stderr)
+    return 0

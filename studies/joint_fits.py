@@ -1,0 +1,226 @@
+"""Joint fits of the shipped trials, and what marginalising sigma and the amplitudes buys.
+
+Two parts (``--part``):
+
+``shipped``
+    For each shipped beam (``data/``: five release trials per beam; generating values in
+    ``data/truth.toml``), with the generating damping model plus the clamp compliance
+    (``root_spring``, hidden in the data): five single-trial fits, then one joint fit
+    with E and the root spring shared and the damping parameters pooled (log-normal
+    population). Reports per beam the single-trial and joint 90 % intervals of E, their
+    width ratio (√5 ≈ 2.24 expected for five equally informative trials), whether the
+    joint interval covers the generating E, the population spread of each damping
+    parameter, each trial's adequacy, and the same joint fit without ``root_spring``
+    (which must report the trials it cannot reproduce).
+``bench``
+    Five 1280-sample synthetic releases of the source's uniform beam (24-element
+    generator), ``--model`` with E shared, to ESS ``--target-ess``: steps, ESS and wall
+    time (the issue's benchmark: ESS >= 1000 within 5 minutes on 2 cores).
+``marginal``
+    One trial (``--trial``; default: the first of ``bench``'s releases), one model:
+    the single fit (sigma and w0 sampled) against the
+    joint fit of that one trial (sigma and w0 integrated out in closed form), a few
+    seeds each: bulk ESS per second of E and the damping parameters, and their means
+    in units of the combined Monte Carlo standard error.
+
+Run from the repository root, e.g.::
+
+    python studies/joint_fits.py --part shipped --beams beam2 --out studies/figures
+    python studies/joint_fits.py --part marginal --seeds 3
+    python studies/joint_fits.py --part bench --model viscous+kv
+
+Prints a markdown table and writes ``joint_<part>.json`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+import tomllib
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from bayesbeam.inference.fit import fit
+from bayesbeam.inference.joint_fit import fit_joint
+from bayesbeam.jobs.demo import find_data
+from bayesbeam.physics.models import parse_model
+from bayesbeam.stats.sampling import NotConvergedWarning
+from bayesbeam.trials.io import read_trial
+
+DAMPING = ("gamma", "c_d", "eta")
+
+
+def _interval(x: np.ndarray) -> tuple[float, float, float]:
+    q05, q50, q95 = np.quantile(x, [0.05, 0.5, 0.95])
+    return float(q05), float(q50), float(q95)
+
+
+def shipped(beams: list[str], settings: dict, say, save) -> list[dict]:
+    """Joint fits first (the result that matters), then the single fits; saved as it goes."""
+    data = find_data(None)
+    truth = tomllib.loads((data / "truth.toml").read_text())
+    rows: list[dict] = []
+    for b in beams:
+        gen = truth[b]
+        model = parse_model(gen["model"] + "+root_spring").name
+        trials = [read_trial(data / f"{b}-trial{i}.toml") for i in range(1, 6)]
+        pooled = tuple(n for n in DAMPING if n in parse_model(model).physical_params
+                       or (n == "eta" and "sh" in model.split("+")))
+        t0 = time.perf_counter()
+        say(f"{b}: joint fit (shared E, root_spring; pooled {pooled})")
+        jf = fit_joint(trials, model, shared=("E", "root_spring"), pooled=pooled, seed=0,
+                       **settings)
+        post = jf.to_json_dict()["posterior"]
+        q05, q50, q95 = _interval(jf.result.theta_samples()[..., jf.result.names.index("E")]
+                                  .ravel())
+        row = {
+            "beam": b, "model": model, "E_true": gen["E"], "joint_E": [q05, q50, q95],
+            "joint_covers_truth": bool(q05 <= gen["E"] <= q95),
+            "root_spring": post.get("root_spring"), "root_spring_true": gen["root_spring"],
+            "spread": {n: post.get(f"{n}_spread") for n in pooled},
+            "adequate": {lb: bool(v.adequacy.get("ok")) for lb, v in zip(jf.labels, jf.trials,
+                                                                         strict=True)},
+            "converged": bool(jf.result.chain.converged), "ess_min": jf.result.chain.ess_min,
+            "tau_max": jf.result.chain.tau_max, "seconds_joint": time.perf_counter() - t0,
+            "single_E": [],
+        }
+        rows.append(row)
+        save(rows)
+        for i, tr in enumerate(trials):
+            say(f"{b}: single fit {i + 1}/5 ({model})")
+            r = fit(tr, model, seed=i, **settings)
+            row["single_E"].append(_interval(r.theta_samples()[..., r.names.index("E")].ravel()))
+            w_single = [hi - lo for lo, _, hi in row["single_E"]]
+            row["width_ratio_median"] = float(np.median(w_single) / (q95 - q05))
+            save(rows)
+        say(f"{b}: joint fit without root_spring")
+        bare = parse_model(gen["model"]).name
+        jb = fit_joint(trials, bare, shared=("E",), pooled=pooled, seed=0, **settings)
+        row["without_root_spring"] = {"model": bare, "adequate": {
+            lb: bool(v.adequacy.get("ok")) for lb, v in zip(jb.labels, jb.trials, strict=True)}}
+        save(rows)
+    return rows
+
+
+def _bench_trials(model: str, n: int) -> list:
+    """``n`` 1280-sample releases of the source's uniform beam (24-element generator)."""
+    from bayesbeam.physics.beam import Beam
+    from bayesbeam.trials.synthetic import simulate_trial
+
+    beam = Beam.rectangular(0.3048, 0.127, 0.72e-3, 0.021, E=6.2e10)
+    params = {"gamma": 0.2, "c_d": 2e6} if "kv" in model else {"gamma": 0.2}
+    return [simulate_trial(beam, model, params, duration=5.0, dt=0.003906,
+                           tip_deflection=0.004 + 0.001 * i, noise_sd=2e-5, seed=i,
+                           n_elements=24, name=f"rel{i + 1}") for i in range(n)]
+
+
+def marginal(trial_path: str | None, model: str, seeds: int, settings: dict, say) -> dict:
+    tr = read_trial(trial_path) if trial_path else _bench_trials(model, 1)[0]
+    out: dict = {"trial": tr.name, "model": model, "runs": []}
+    for s in range(seeds):
+        say(f"marginal: seed {s}: sampled sigma, w0")
+        a = fit(tr, model, seed=s, **settings)
+        say(f"marginal: seed {s}: integrated out")
+        j = fit_joint([tr], model, shared=(), seed=s, **settings).result
+        run = {"seed": s}
+        for tag, r, rename in (("sampled", a, lambda n: n), ("marginal", j,
+                                                            lambda n: f"{n}[{tr.name}]")):
+            names = [n for n in a.names if n == "E" or n in DAMPING]
+            idx = [r.names.index(rename(n)) for n in names]
+            X = r.theta_samples().reshape(-1, r.chain.ndim)[:, idx]
+            ess = r.chain.ess[idx]
+            run[tag] = {"seconds": r.chain.seconds, "ndim": r.chain.ndim,
+                        "ess_min": float(np.min(ess)),
+                        "ess_per_s": float(np.min(ess) / r.chain.seconds),
+                        "mean": dict(zip(names, X.mean(0).tolist(), strict=True)),
+                        "mcse": dict(zip(names, (X.std(0) / np.sqrt(ess)).tolist(),
+                                         strict=True))}
+        run["ratio_ess_per_s"] = run["marginal"]["ess_per_s"] / run["sampled"]["ess_per_s"]
+        run["mean_diff_in_mcse"] = {
+            n: (run["marginal"]["mean"][n] - run["sampled"]["mean"][n])
+            / math.hypot(run["marginal"]["mcse"][n], run["sampled"]["mcse"][n])
+            for n in run["sampled"]["mean"]}
+        out["runs"].append(run)
+    out["median_ratio_ess_per_s"] = float(np.median([r["ratio_ess_per_s"] for r in out["runs"]]))
+    return out
+
+
+def bench(model: str, settings: dict, say) -> dict:
+    """Five 1280-sample release trials of the source's uniform beam, E shared: wall time."""
+    trials = _bench_trials(model, 5)
+    t0 = time.perf_counter()
+    say(f"bench: joint {model} of five 1280-sample trials, E shared")
+    jf = fit_joint(trials, model, shared=("E",), seed=0, **settings)
+    total = time.perf_counter() - t0
+    c = jf.result.chain
+    return {"model": model, "n_trials": 5, "n_samples": 1280, "ndim": c.ndim,
+            "nwalkers": c.nwalkers, "steps": c.n_steps_total, "ess_min": c.ess_min,
+            "converged": bool(c.converged), "sampling_seconds": c.seconds,
+            "total_seconds": total, "ess_per_s": c.ess_min / c.seconds}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--part", choices=("shipped", "marginal", "bench"), required=True)
+    ap.add_argument("--beams", default="beam1,beam2,beam3")
+    ap.add_argument("--trial", default=None, help="trial of --part marginal")
+    ap.add_argument("--model", default="viscous+kv", help="model of --part marginal")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--target-ess", type=float, default=1000.0)
+    ap.add_argument("--max-steps", type=int, default=20000)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "figures")
+    args = ap.parse_args()
+
+    def say(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    settings = {"target_ess": args.target_ess, "max_steps": args.max_steps, "progress": False}
+    args.out.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", NotConvergedWarning)  # report, do not stop
+        if args.part == "shipped":
+            def save(rows: list[dict]) -> None:
+                (args.out / "joint_shipped.json").write_text(
+                    json.dumps(rows, indent=2, default=str) + "\n")
+
+            res = shipped([b.strip() for b in args.beams.split(",")], settings, say, save)
+            print("| beam | single E 90 % widths (GPa) | joint E [q05, q95] (GPa) | width "
+                  "ratio | covers | root spring | spreads q95 | adequate | w/o root_spring |")
+            print("|---|---|---|---|---|---|---|---|---|")
+            for r in res:
+                ws = ", ".join(f"{(hi - lo) / 1e9:.3f}" for lo, _, hi in r["single_E"])
+                lo, _, hi = r["joint_E"]
+                sp = ", ".join(f"{n} {v['q95']:.3g}" for n, v in r["spread"].items() if v)
+                print(f"| {r['beam']} | {ws} | [{lo / 1e9:.3f}, {hi / 1e9:.3f}] | "
+                      f"{r['width_ratio_median']:.2f} | {r['joint_covers_truth']} | "
+                      f"{r['root_spring']['q50']:.3g} (true {r['root_spring_true']:g}) | {sp} | "
+                      f"{sum(r['adequate'].values())}/5 | "
+                      f"{sum(r['without_root_spring']['adequate'].values())}/5 |")
+        elif args.part == "bench":
+            res = bench(args.model, settings, say)
+            print("| model | trials x samples | ndim | walkers | steps | ESS min | converged "
+                  "| sampling s | total s |")
+            print("|---|---|---|---|---|---|---|---|---|")
+            print(f"| {res['model']} | 5 x 1280 | {res['ndim']} | {res['nwalkers']} | "
+                  f"{res['steps']} | {res['ess_min']:.0f} | {res['converged']} | "
+                  f"{res['sampling_seconds']:.0f} | {res['total_seconds']:.0f} |")
+        else:
+            res = marginal(args.trial, args.model, args.seeds, settings, say)
+            print("| seed | ESS/s sampled | ESS/s marginal | ratio | mean diffs (MCSE) |")
+            print("|---|---|---|---|---|")
+            for r in res["runs"]:
+                d = ", ".join(f"{n} {v:+.1f}" for n, v in r["mean_diff_in_mcse"].items())
+                print(f"| {r['seed']} | {r['sampled']['ess_per_s']:.1f} | "
+                      f"{r['marginal']['ess_per_s']:.1f} | {r['ratio_ess_per_s']:.2f} | {d} |")
+            print(f"median ratio {res['median_ratio_ess_per_s']:.2f}")
+    (args.out / f"joint_{args.part}.json").write_text(json.dumps(res, indent=2, default=str)
+                                                     + "\n")
+
+
+if __name__ == "__main__":
+    main()

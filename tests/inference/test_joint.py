@@ -1,0 +1,203 @@
+"""JointProblem: names, parameter maps, the marginal likelihood and the pooled coordinates."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import integrate
+
+from bayesbeam.inference.joint import JointError, JointProblem, PoolCoordinates, trial_labels
+from bayesbeam.inference.problem import Problem
+from bayesbeam.physics.beam import Beam
+from bayesbeam.stats.likelihood import ar1_loglik, iid_loglik
+from bayesbeam.trials.synthetic import simulate_trial
+
+E_TRUE = 6.2e10
+NE = 6  # the checks compare the joint problem with single problems on the same mesh
+
+
+def _beam(length=0.3048):
+    return Beam.rectangular(length, 0.127, 0.72e-3, 0.021, E=E_TRUE)
+
+
+@pytest.fixture(scope="module")
+def trials():
+    # Generated on a finer mesh than the problems use (no inverse crime in what follows).
+    return [simulate_trial(_beam(L), "viscous", {"gamma": g}, duration=0.5, dt=1 / 256,
+                           tip_deflection=d, noise_sd=1e-5, seed=i, n_elements=12,
+                           name=f"t{i}")
+            for i, (L, g, d) in enumerate([(0.3048, 0.2, 0.005), (0.28, 0.25, 0.006),
+                                           (0.3048, 0.18, 0.004)])]
+
+
+def test_names_shared_pooled_per_trial(trials):
+    jp = JointProblem(trials, "viscous", shared=("E",), pooled=("gamma",), n_elements=NE)
+    assert jp.names == ("E", "gamma_median", "gamma_spread", "gamma_z[t0]", "gamma_z[t1]",
+                        "gamma_z[t2]")
+    assert jp.marginalised == ("sigma", "w0")
+    jq = JointProblem(trials, "viscous", shared=("E",), marginalise=False, n_elements=NE)
+    assert jq.names == ("E", "gamma[t0]", "w0[t0]", "sigma[t0]", "gamma[t1]", "w0[t1]",
+                        "sigma[t1]", "gamma[t2]", "w0[t2]", "sigma[t2]")
+    # Different lengths centre the trials' E priors differently... here beam.E is given,
+    # so all are the same; the shared prior is that prior.
+    assert jq.priors["E"] == jq.problems[0].priors["E"]
+
+
+def test_labels_unique():
+    class T:
+        def __init__(self, name):
+            self.name = name
+    assert trial_labels([T("a"), T("a"), T("b")]) == ("a", "a#2", "b")
+
+
+def test_trial_theta_round_trip(trials):
+    jp = JointProblem(trials, "viscous", shared=("E",), pooled=("gamma",), n_elements=NE)
+    per = [np.array([E_TRUE, g, 0.005, 1e-5]) for g in (0.2, 0.25, 0.18)]
+    x = jp.joint_theta(per)
+    for i, p in enumerate(per):
+        xi = jp.trial_theta(x[None], i)[0]
+        np.testing.assert_allclose(xi[:2], p[:2], rtol=1e-12)
+        assert np.all(np.isnan(xi[2:]))  # marginalised columns
+
+
+def test_no_marginalise_is_sum_of_single_problems(trials):
+    jq = JointProblem(trials, "viscous", shared=("E",), marginalise=False, n_elements=NE)
+    rng = np.random.default_rng(0)
+    per = [np.array([E_TRUE * (1 + 1e-3 * rng.standard_normal()), 0.2, 0.005, 1.2e-5])
+           for _ in trials]
+    for p in per:
+        p[0] = per[0][0]  # one shared E
+    x = jq.joint_theta(per)
+    ll = jq.log_likelihood(jq.priors.to_u(x[None]))[0]
+    want = sum(pb.log_likelihood_theta(p[None])[0] for pb, p in zip(jq.problems, per,
+                                                                      strict=True))
+    # The same residuals through two code paths: rounding only (1e-12 of |ll| ~ 1e4).
+    assert ll == pytest.approx(want, rel=1e-12)
+
+
+@pytest.mark.parametrize("model", ["viscous", "viscous+ar1_noise"])
+def test_marginal_matches_numerical_integration(trials, model):
+    """The closed-form marginal over sigma and w0 of one trial against 2-D quadrature.
+
+    The integrand is the single Problem's own likelihood, evaluated through the linearity
+    of the signal in w0 (checked here first to 1e-9); the quadrature covers the whole
+    posterior mass of (w0, log sigma), and the tolerance 1e-6 of the likelihood is the
+    issue's (quad's own error is ~1e-10 here).
+    """
+    tr = trials[1]
+    jp = JointProblem([tr], model, shared=(), n_elements=NE)
+    pb = Problem(tr, model, n_elements=NE)
+    E, gamma, rho = E_TRUE * 1.0005, 0.24, 0.35
+    extra = [rho] if "ar1" in model else []
+
+    def loglik(r, s):
+        return ar1_loglik(r, s, rho) if extra else iid_loglik(r, s)
+
+    b = pb.predict(np.array([[E, gamma, 1.0, 1.0, *extra]])).y[0]
+    assert pb.log_likelihood_theta(np.array([[E, gamma, 0.0061, 1.3e-5, *extra]]))[0] == (
+        pytest.approx(loglik(tr.values - 0.0061 * b, 1.3e-5), rel=1e-9))
+    got = jp.log_likelihood(jp.priors.to_u(np.array([[E, gamma, *extra]])))[0]
+    y = np.asarray(tr.values)
+    ps, pw = pb.priors["sigma"], pb.priors["w0"]
+    w_hat = float(b @ y / (b @ b))
+    s_hat = float(np.sqrt(np.sum((y - w_hat * b) ** 2) / y.size))
+    sd_w = 3 * s_hat / math.sqrt(b @ b)  # x3: AR(1) noise widens the amplitude's posterior
+    # The Gaussian log-likelihood is K - T log s - q(w) / (2 s²) with q quadratic in w:
+    # read K and q off four evaluations of the likelihood itself, so that quad's ~1e6
+    # integrand calls cost O(1) (checked against the likelihood at another point).
+    # Evaluations at the data's own scales (w near w_hat, s = s_hat, 2 s_hat) keep the
+    # differences well conditioned.
+    T, sa = y.size, s_hat
+    ws = np.array([0.5, 1.0, 1.5]) * w_hat
+    la = np.array([loglik(y - w * b, sa) for w in ws])
+    lb = loglik(y - ws[0] * b, 2 * sa)
+    qa0 = (T * math.log(2.0) - (la[0] - lb)) * 8.0 / 3.0  # q(ws[0]) / sa²
+    K = la[0] + T * math.log(sa) + qa0 / 2
+    coef = np.polyfit(ws, 2 * (K - T * math.log(sa) - la), 2)  # q(w) / sa², exact at 3 points
+
+    def ll(w, s):
+        return K - T * math.log(s) - np.polyval(coef, w) * sa * sa / (2 * s * s)
+
+    assert ll(0.0061, 1.3e-5) == pytest.approx(loglik(y - 0.0061 * b, 1.3e-5), rel=1e-9)
+    shift = ll(w_hat, s_hat)  # scale the integrand near 1
+
+    def f(log_s, w):
+        return math.exp(ll(w, math.exp(log_s)) - shift) / math.log(ps.hi / ps.lo)
+
+    val, err = integrate.dblquad(
+        f, w_hat - 12 * sd_w, w_hat + 12 * sd_w,
+        math.log(max(ps.lo, s_hat / 3)), math.log(min(ps.hi, s_hat * 3)),
+        epsabs=0, epsrel=1e-11)
+    want = math.log(val) + shift - math.log(pw.hi - pw.lo)
+    assert abs(got - want) < 1e-6, (got, want, err / val)
+
+
+def test_complete_draws_are_near_the_truth(trials):
+    jp = JointProblem(trials[:1], "viscous", shared=(), n_elements=NE)
+    U = np.repeat(jp.priors.to_u(np.array([[E_TRUE, 0.2]])), 2000, axis=0)
+    X = jp.complete(U, np.random.default_rng(3))[0]
+    sigma, w0 = X[:, 3], X[:, 2]
+    # 128 samples: sigma's posterior sd is ~ sigma/sqrt(2 T) = 6 % of it; the mesh (6 vs
+    # 12 elements) and the draws' scatter stay inside 25 %.
+    assert np.median(sigma) == pytest.approx(1e-5, rel=0.25)
+    assert np.median(w0) == pytest.approx(0.005, rel=0.02)
+    again = jp.complete(U, np.random.default_rng(3))[0]
+    np.testing.assert_array_equal(X, again)
+
+
+def test_pool_coordinates_round_trip_and_jacobian(trials):
+    jp = JointProblem(trials, "viscous", shared=("E",), pooled=("gamma",), n_elements=NE)
+    pc = PoolCoordinates(jp)
+    rng = np.random.default_rng(1)
+    U = jp.priors.sample_u(rng, 5)
+    np.testing.assert_allclose(pc.to_u(pc.to_v(U)), U, rtol=1e-12, atol=1e-12)
+    # log |du/dv| by finite differences of to_u at one point.
+    v = pc.to_v(U[:1])[0]
+    h = 1e-6
+    J = np.empty((v.size, v.size))
+    for j in range(v.size):
+        e = np.zeros(v.size)
+        e[j] = h
+        J[:, j] = (pc.to_u(v + e) - pc.to_u(v - e)) / (2 * h)
+    assert pc.log_jacobian(v) == pytest.approx(np.linalg.slogdet(J)[1], abs=1e-6)
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"shared": ("nope",)}, "not parameters of model"),
+    ({"shared": ("E",), "pooled": ("E",)}, "both shared and pooled"),
+    ({"shared": ("sigma",)}, "integrated out"),
+    ({"shared": (), "pooled": ("w0",), "marginalise": False}, "prior on log"),
+])
+def test_bad_names_say_how_to_fix(trials, kw, match):
+    with pytest.raises(JointError, match=match):
+        JointProblem(trials, "viscous", n_elements=NE, **kw)
+
+
+def test_no_trials_is_an_error():
+    with pytest.raises(JointError, match="at least one trial"):
+        JointProblem([], "viscous")
+
+
+def test_sampler_coordinates_of_a_joint_fit_round_trip_and_jacobian(trials):
+    """Per-trial damping-law coordinates and centred pooled values: bijection, Jacobian."""
+    from bayesbeam.inference.joint_fit import _Coordinates
+
+    jp = JointProblem(trials, "viscous+kv", shared=("E",), pooled=("c_d",), n_elements=NE)
+    co = _Coordinates(jp)
+    assert co.laws == []  # c_d is pooled: no trial has two laws of its own
+    jq = JointProblem(trials, "viscous+kv", shared=("E",), n_elements=NE)
+    cq = _Coordinates(jq)
+    assert len(cq.laws) == len(trials)
+    for c, p in ((co, jp), (cq, jq)):
+        U = p.priors.sample_u(np.random.default_rng(2), 4)
+        np.testing.assert_allclose(c.to_u(c.to_v(U)), U, rtol=1e-10, atol=1e-10)
+        v = c.to_v(U[:1])[0]
+        h = 1e-6
+        J = np.empty((v.size, v.size))
+        for j in range(v.size):
+            e = np.zeros(v.size)
+            e[j] = h
+            J[:, j] = (c.to_u(v + e) - c.to_u(v - e)) / (2 * h)
+        assert c.log_jacobian(v) == pytest.approx(np.linalg.slogdet(J)[1], abs=1e-5)

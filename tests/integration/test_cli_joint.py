@@ -1,0 +1,89 @@
+"""``bayesbeam fit`` and ``bayesbeam compare`` on several trials (joint fits)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import arviz
+import pytest
+
+from bayesbeam.cli import compare as compare_cli
+from bayesbeam.cli import fit as fit_cli
+from bayesbeam.inference.problem import BETA1
+from bayesbeam.physics.beam import Beam
+from bayesbeam.trials.synthetic import simulate_trial
+
+E = 6.2e10
+
+
+def _run(module, argv):
+    p = argparse.ArgumentParser(prog="bayesbeam")
+    module.register(p.add_subparsers(dest="command"))
+    return module.run(p.parse_args(argv))
+
+
+@pytest.fixture(scope="module")
+def trial_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("joint")
+    beam = Beam.rectangular(0.3048, 0.127, 0.72e-3, 0.021, E=E)
+    w1 = BETA1**2 * math.sqrt(E * beam.I / (beam.rhoA * beam.length**4))
+    paths = []
+    for i in range(3):
+        p = d / f"rel{i + 1}.toml"
+        simulate_trial(beam, "viscous", {"gamma": 2 * beam.rhoA * w1 * 0.01 * (1 + 0.1 * i)},
+                       duration=0.5, dt=1 / 256, noise_sd=2e-5, seed=i, n_elements=8,
+                       tip_deflection=0.005, name=f"rel{i + 1}", out=p)
+        paths.append(str(p))
+    return paths
+
+
+@pytest.mark.slow
+def test_joint_fit_json_has_single_fit_keys_and_trial_names(trial_files, tmp_path, capsys):
+    out = tmp_path / "joint"
+    assert _run(fit_cli, ["fit", *trial_files, "--model", "viscous", "--shared", "E", "-o",
+                          str(out), "--json", "--elements", "6", "--max-steps", "400",
+                          "--target-ess", "100", "--fixed-mesh"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert set(payload["posterior"]["E"]) == {"mean", "sd", "q05", "q50", "q95"}
+    for lb in ("rel1", "rel2", "rel3"):
+        assert f"gamma[{lb}]" in payload["posterior"]
+        assert f"w0[{lb}]" in payload["posterior"]  # integrated out, drawn for the report
+        assert lb in payload["trials"]
+    assert payload["joint"]["shared"] == ["E"]
+    assert payload["units"]["E"] == "Pa"
+    for f in ("summary.json", "posterior.nc", "corner.png", "trace.png", "fit_rel1.png",
+              "run.json"):
+        assert (out / f).is_file(), f
+    tree = arviz.from_netcdf(out / "posterior.nc")
+    assert tree["posterior"]["gamma"].dims == ("chain", "draw", "trial")
+    assert tree["posterior"]["E"].dims == ("chain", "draw")
+
+
+def test_joint_fit_bad_name_is_one_clear_line(trial_files, tmp_path):
+    with pytest.raises(fit_cli.FitCLIError, match="not parameters of model"):
+        _run(fit_cli, ["fit", *trial_files[:2], "--model", "viscous", "--shared", "EE",
+                       "-o", str(tmp_path / "x"), "--elements", "6", "--fixed-mesh"])
+
+
+def test_compare_several_trials_needs_shared(trial_files, tmp_path):
+    with pytest.raises(compare_cli.CompareCLIError, match="--shared"):
+        _run(compare_cli, ["compare", *trial_files[:2], "--models", "viscous", "-o",
+                           str(tmp_path / "c")])
+
+
+@pytest.mark.slow
+def test_compare_several_trials_ranks_sharing(trial_files, tmp_path, capsys):
+    out = tmp_path / "cmp"
+    assert _run(compare_cli, ["compare", *trial_files, "--models", "viscous", "--shared", "E",
+                              "-o", str(out), "--json", "--elements", "6", "--fixed-mesh",
+                              "--max-steps", "1500", "--target-ess", "200"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    rec = payload["models"]["viscous"]
+    names = [v["name"] for v in rec["variants"]]
+    assert names == ["viscous | shared E", "viscous | nothing shared"]
+    # Every trial has the generating E: sharing it wins (Occam factor of two moduli).
+    assert rec["best"] == "viscous | shared E"
+    assert all(math.isfinite(v["log_z_err"]) for v in rec["variants"])
+    assert (out / "comparison.txt").is_file()
