@@ -136,12 +136,10 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
               "marginalise": not args.no_marginalise, "seed": int(args.seed),
               "n_elements": int(args.elements), "initial": initial}
     run_path = outdir / "run.json"
-    if args.resume and run_path.is_file():
-        old = json.loads(run_path.read_text(encoding="utf-8")).get("record", {})
-        diff = sorted(k for k in record if json.dumps(old.get(k)) != json.dumps(record[k]))
-        if diff:
-            raise error(f"--resume: options {diff} differ from the run in {outdir}; repeat the "
-                        "original options, or drop --resume to start over")
+    if args.resume:
+        from bayesbeam.cli.fit import _check_resume  # the single fit's rule, one home
+
+        _check_resume(outdir, record)
     write_text_atomic(run_path, json.dumps({"schema_version": SCHEMA_VERSION, "record": record,
                                             "argv": sys.argv[1:]}, indent=2) + "\n")
     with warnings.catch_warnings(record=True) as caught:

@@ -196,11 +196,9 @@ class JointComparison:
             e = s.evidence
             el = (f"{s.loo.elpd_loo:>12.2f} {s.loo.se:>7.2f}" if s.loo is not None
                   else f"{'-':>12} {'-':>7}")
+            notes = f"  {len(s.notes)} note(s)" if s.notes else ""
             lines.append(f"{s.name:<{w}} {s.n_params:>4} {e.log_z:>12.2f} {e.log_z_err:>7.2f} "
-                         f"{self.delta_log_z.get(s.name, math.nan):>+9.2f} {el}  "
-                         f"{len(s.notes)} note(s)" if s.notes else
-                         f"{s.name:<{w}} {s.n_params:>4} {e.log_z:>12.2f} {e.log_z_err:>7.2f} "
-                         f"{self.delta_log_z.get(s.name, math.nan):>+9.2f} {el}")
+                         f"{self.delta_log_z.get(s.name, math.nan):>+9.2f} {el}{notes}")
         lines.append(self.verdict())
         return "\n".join(lines)
 
