@@ -144,24 +144,6 @@ def _run_record(args: argparse.Namespace, trial: Any, priors: Any, model: str,
     }
 
 
-def _check_resume(outdir: Path, record: dict[str, Any]) -> None:
-    path = outdir / "run.json"
-    if not path.is_file():
-        return
-    try:
-        old = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise FitCLIError(f"{path} is not valid JSON ({exc}); delete it to resume anyway") from None
-    old = old.get("record", old)
-    diff = sorted(k for k in record if json.dumps(old.get(k)) != json.dumps(record[k]))
-    if diff:
-        raise FitCLIError(
-            f"--resume: options {diff} differ from the run in {outdir} "
-            f"({', '.join(f'{k}: {old.get(k)!r} -> {record[k]!r}' for k in diff[:3])}); "
-            "repeat the original options, or drop --resume to start over"
-        )
-
-
 def _truths(trial: Any, problem: Any) -> list[float | None] | None:
     """Return the true values of a synthetic trial (trials.synthetic), for the corner plot."""
     syn = trial.meta.get("synthetic") or trial.source
@@ -225,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from bayesbeam._util import write_text_atomic
-    from bayesbeam.cli.outdir import stamp
+    from bayesbeam.cli.outdir import check_resume, stamp
     from bayesbeam.inference.fit import fit
     from bayesbeam.inference.predictive import PPC_DRAWS, posterior_predictive
     from bayesbeam.inference.problem import Problem, default_priors
@@ -247,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
     outdir = Path(args.outdir)
     record = _run_record(args, trial, priors, model.name, initial)
     if args.resume:
-        _check_resume(outdir, record)
+        check_resume(outdir, record, FitCLIError)
         saved_steps(outdir / "chain.h5")  # a damaged checkpoint fails now, not after the MAP
     outdir.mkdir(parents=True, exist_ok=True)
     run_id = getattr(args, "run_id", None)

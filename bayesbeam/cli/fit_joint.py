@@ -97,7 +97,7 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
     import numpy as np
 
     from bayesbeam._util import write_text_atomic
-    from bayesbeam.cli.outdir import stamp
+    from bayesbeam.cli.outdir import check_resume, stamp
     from bayesbeam.inference.joint import JointError
     from bayesbeam.inference.joint_fit import fit_joint
     from bayesbeam.inference.predictive import PPC_DRAWS, posterior_predictive
@@ -137,9 +137,7 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
               "n_elements": int(args.elements), "initial": initial}
     run_path = outdir / "run.json"
     if args.resume:
-        from bayesbeam.cli.fit import _check_resume  # the single fit's rule, one home
-
-        _check_resume(outdir, record)
+        check_resume(outdir, record, error)
     write_text_atomic(run_path, json.dumps({"schema_version": SCHEMA_VERSION, "record": record,
                                             "argv": sys.argv[1:]}, indent=2) + "\n")
     with warnings.catch_warnings(record=True) as caught:

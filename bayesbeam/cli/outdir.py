@@ -31,7 +31,7 @@ from typing import Any
 
 from bayesbeam._util import SCHEMA_VERSION
 
-__all__ = ["LOCK_NAME", "OutdirBusy", "OutdirError", "claim", "new_run_id",
+__all__ = ["LOCK_NAME", "OutdirBusy", "OutdirError", "check_resume", "claim", "new_run_id",
            "stamp"]
 
 #: Name of the lock file inside a claimed output folder.
@@ -44,6 +44,38 @@ class OutdirError(ValueError):
 
 class OutdirBusy(RuntimeError):
     """Another run holds the output folder (exit status 4)."""
+
+
+def check_resume(outdir: Path, record: dict[str, Any], error: type[Exception]) -> None:
+    """Refuse ``--resume`` when the options differ from those of the run in ``outdir``.
+
+    The run's options are in ``OUTDIR/run.json`` (key ``record``); a chain continued under
+    other options would mix two posteriors in one file.
+
+    Parameters
+    ----------
+    outdir : Path
+        The output folder of the run to resume.
+    record : dict
+        The options of this run, in the form written to ``run.json``.
+    error : type of Exception
+        Raised, with a message saying how to go on, on a difference or a damaged file.
+    """
+    path = outdir / "run.json"
+    if not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise error(f"{path} is not valid JSON ({exc}); delete it to resume anyway") from None
+    old = old.get("record", old)
+    diff = sorted(k for k in record if json.dumps(old.get(k)) != json.dumps(record[k]))
+    if diff:
+        raise error(
+            f"--resume: options {diff} differ from the run in {outdir} "
+            f"({', '.join(f'{k}: {old.get(k)!r} -> {record[k]!r}' for k in diff[:3])}); "
+            "repeat the original options, or drop --resume to start over"
+        )
 
 
 def new_run_id(command: str) -> str:
