@@ -29,7 +29,6 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import Any
 
 from bayesbeam._util import SCHEMA_VERSION
 from bayesbeam.cli import options as opts
@@ -46,36 +45,6 @@ def split_names(text: str | None) -> tuple[str, ...]:
 
 def _file_label(label: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", label)
-
-
-def _plot_corner(result: Any, names: list[str], path: Path) -> Path | None:
-    """Corner plot of the named sampled parameters (physical values), or None if none."""
-    import corner
-    import numpy as np
-    from matplotlib.figure import Figure
-
-    from bayesbeam._util import fmt_interval
-
-    cols = [result.names.index(n) for n in names if n in result.names]
-    if not cols:
-        return None
-    flat = result.theta_samples().reshape(-1, result.chain.ndim)[:, cols]
-    nd = len(cols)
-    fig = Figure(figsize=(2.2 * nd + 1, 2.2 * nd + 1))
-    if nd == 1:
-        ax = fig.subplots()
-        ax.hist(flat[:, 0], bins=40, color="0.4")
-        q = np.quantile(flat[:, 0], [0.05, 0.5, 0.95])
-        for v in q:
-            ax.axvline(v, color="k", ls="--", lw=0.8)
-        ax.set_xlabel(result.names[cols[0]])
-        mid, lo, hi = fmt_interval(q[1], q[0], q[2])
-        ax.set_title(f"{result.names[cols[0]]} = {mid} [{lo}, {hi}] (90 %)", fontsize=9)
-    else:
-        corner.corner(flat, labels=[result.names[j] for j in cols],
-                      quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".4g", fig=fig)
-    fig.savefig(path, dpi=110)
-    return path
 
 
 def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
@@ -161,16 +130,20 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
                                                                            strict=True)}
     jp = jf.problem
     top = [*jp.shared, *(f"{n}_{s}" for n in jp.pooled for s in ("median", "spread"))]
-    _plot_corner(jf.result, top, outdir / "corner.png")
+    figures = ["corner.png"] if top else []
+    if top:
+        jf.result.plot_corner(outdir / "corner.png", names=top)
     jf.result.plot_trace(outdir / "trace.png")
-    figures = []
+    figures.append("trace.png")
     for lb, view, trial in zip(jf.labels, jf.trials, trials, strict=True):
         pb = view.problem
         _, y_model, y_rep = posterior_predictive(pb, view, PPC_DRAWS, rng)
         path = outdir / f"fit_{_file_label(lb)}.png"
-        plot_fit(trial, pb, view, path, rng=rng, draws=(y_model, y_rep))
+        plot_fit(trial, pb, view, path, rng=rng, draws=(y_model, y_rep),
+                 title=f"{lb}: joint fit of {len(trials)} trials, model {view.model!r}, "
+                       f"{y_model.shape[0]} posterior draws")
         figures.append(path.name)
-    payload["figures"] = ["corner.png", "trace.png", *figures]
+    payload["figures"] = figures
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["outdir"] = str(outdir)
     write_text_atomic(outdir / "summary.json", json.dumps(payload, indent=2, allow_nan=False)

@@ -827,7 +827,8 @@ class FitResult:
         return cls.from_inference_data(arviz.from_netcdf(path, engine="h5netcdf"))
 
     # -- plots -----------------------------------------------------------------------
-    def plot_corner(self, path: str | Path, *, truths: Any = None, dpi: int = 120) -> Path:
+    def plot_corner(self, path: str | Path, *, truths: Any = None, dpi: int = 120,
+                    names: Any = None) -> Path:
         """Corner plot of the physical posterior (corner package) with 5/50/95 % marks.
 
         Parameters
@@ -835,31 +836,60 @@ class FitResult:
         path : str or pathlib.Path
             Image file; the format follows the suffix (``.png``, ``.pdf``, ...).
         truths : array_like, optional
-            Reference values (e.g. the truth of a synthetic trial), shape ``(ndim,)``;
-            ``None`` entries are skipped.
+            Reference values (e.g. the truth of a synthetic trial), one per plotted
+            parameter; ``None`` entries are skipped.
         dpi : int, default 120
+        names : sequence of str, optional
+            Plot only these sampled parameters, in this order (e.g. a joint fit's shared
+            and population parameters); default all. One name gives a histogram with
+            the 90 % interval in its title.
 
         Returns
         -------
         pathlib.Path
+
+        Raises
+        ------
+        ValueError
+            If ``names`` holds a name that is not sampled.
         """
         import corner
         from matplotlib.figure import Figure
 
+        from bayesbeam._util import fmt_interval
+
+        names = list(self.names) if names is None else list(names)
+        unknown = [n for n in names if n not in self.names]
+        if unknown or not names:
+            raise ValueError(f"cannot plot {unknown or 'no parameter'}: the sampled "
+                             f"parameters are {list(self.names)}")
+        cols = [self.names.index(n) for n in names]
         # A bare Figure renders with the Agg canvas and leaves pyplot's global
         # state and backend untouched (no import-time or global side effects).
-        nd = self.chain.ndim
+        nd = len(cols)
         fig = Figure(figsize=(2.2 * nd + 1, 2.2 * nd + 1))
-        flat = self.theta_samples().reshape(-1, nd)
-        corner.corner(
-            flat,
-            labels=list(self.names),
-            quantiles=list(_QUANTILES.values()),
-            show_titles=True,
-            title_fmt=".3g",
-            truths=None if truths is None else list(truths),
-            fig=fig,
-        )
+        flat = self.theta_samples().reshape(-1, self.chain.ndim)[:, cols]
+        if nd == 1:  # corner draws a bare histogram without its interval for one column
+            ax = fig.subplots()
+            ax.hist(flat[:, 0], bins=40, color="0.4")
+            q = np.quantile(flat[:, 0], list(_QUANTILES.values()))
+            for v in q:
+                ax.axvline(v, color="k", ls="--", lw=0.8)
+            if truths is not None and truths[0] is not None:
+                ax.axvline(float(truths[0]), color="C0", lw=1.2)
+            ax.set_xlabel(names[0])
+            mid, lo, hi = fmt_interval(q[1], q[0], q[2])
+            ax.set_title(f"{names[0]} = {mid} [{lo}, {hi}] (90 %)", fontsize=9)
+        else:
+            corner.corner(
+                flat,
+                labels=names,
+                quantiles=list(_QUANTILES.values()),
+                show_titles=True,
+                title_fmt=".3g",
+                truths=None if truths is None else list(truths),
+                fig=fig,
+            )
         fig.suptitle(f"{self.model}: posterior ({flat.shape[0]} samples)")
         path = Path(path)
         with atomic_path(path) as tmp:

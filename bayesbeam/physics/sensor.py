@@ -190,11 +190,13 @@ def _invariant_reduction(
     kept part of the response is exactly that of the small real system
     ``a' = (A11 + A12 X) a``, ``y = (h_K + h_D X) a``: the projection of
     :func:`_eigen_projection` without an eigendecomposition of A, and a propagation of
-    ``len(K)`` states instead of all.
+    ``len(K)`` states instead of all. ``A22`` is the dropped modes' own modal state
+    matrix, inverted in closed form (:func:`_modal_inverse`).
 
     Parameters
     ----------
     A : ndarray, shape (B, s, s)
+        Modal state matrices (:func:`bayesbeam.physics.propagate.state_matrix` form).
     z0, h : ndarray, shape (B, s)
     K : ndarray of int, shape (2k,)
         Kept state coordinates (``[Ω q; q']`` of the kept modes).
@@ -219,21 +221,17 @@ def _invariant_reduction(
     B, n = A.shape[0], K.size
     ok = np.ones(B, dtype=bool)
     with np.errstate(all="ignore"):
-        try:
-            Ai = np.linalg.inv(A22)
-        except np.linalg.LinAlgError:
-            return (np.zeros((B, n, n)), np.zeros((B, n)), np.zeros((B, n)), z0,
-                    np.zeros(B, dtype=bool))
-        X = -Ai @ A21
-        Y = A12 @ Ai
-        done = np.zeros(B, dtype=bool)
+        Ai = _modal_inverse(A22)
+        AiA21, A12Ai = Ai @ A21, A12 @ Ai
+        X, Y = -AiA21, A12Ai
+        # The iteration in factored form: X A11 + X A12 X = X (A11 + A12 X) and
+        # A11 Y - Y A21 Y = (A11 - Y A21) Y, so that each step multiplies Ai by a thin
+        # (s - 2k) x 2k block only (the state's full dimension never appears squared).
         for _ in range(MAX_ITERATIONS):
-            Xn = Ai @ (X @ A11 + X @ A12 @ X - A21)
-            Yn = (A11 @ Y + A12 - Y @ A21 @ Y) @ Ai
-            dx = np.linalg.norm(Xn - X, axis=(1, 2)) / np.maximum(
-                np.linalg.norm(Xn, axis=(1, 2)), 1e-300)
-            dy = np.linalg.norm(Yn - Y, axis=(1, 2)) / np.maximum(
-                np.linalg.norm(Yn, axis=(1, 2)), 1e-300)
+            Xn = (Ai @ X) @ (A11 + A12 @ X) - AiA21
+            Yn = (A11 - Y @ A21) @ (Y @ Ai) + A12Ai
+            dx = _rel_change(Xn, X)
+            dy = _rel_change(Yn, Y)
             X, Y = Xn, Yn
             done = (dx <= TOLERANCE) & (dy <= TOLERANCE)
             if np.all(done | ~np.isfinite(dx) | ~np.isfinite(dy)):
@@ -254,3 +252,39 @@ def _invariant_reduction(
 
 
 
+
+
+def _rel_change(new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """Frobenius norm of ``new - old`` relative to that of ``new``, per batch entry."""
+    d = new - old
+    num = np.einsum("bij,bij->b", d, d)
+    den = np.einsum("bij,bij->b", new, new)
+    return np.sqrt(num / np.maximum(den, 1e-300))
+
+
+def _modal_inverse(A: np.ndarray) -> np.ndarray:
+    """Inverse of modal state matrices ``A = [[0, Ω], [-Ω, -C]]`` in closed form.
+
+    ``A⁻¹ = [[-Ω⁻¹ C Ω⁻¹, -Ω⁻¹], [Ω⁻¹, 0]]`` (multiply out: the blocks give I, 0, 0, I),
+    with Ω diagonal: no factorisation, and exact where an LU would lose the digits of the
+    stiff modes. A zero ω gives non-finite entries, which the caller flags.
+
+    Parameters
+    ----------
+    A : ndarray, shape (B, 2r, 2r)
+        State matrices of :func:`bayesbeam.physics.propagate.state_matrix` form (here the
+        dropped modes' block of one).
+
+    Returns
+    -------
+    ndarray, shape (B, 2r, 2r)
+    """
+    r = A.shape[1] // 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wi = 1.0 / np.diagonal(A[:, :r, r:], axis1=1, axis2=2)  # (B, r): 1/ω
+    out = np.zeros_like(A)
+    out[:, :r, :r] = wi[:, :, None] * A[:, r:, r:] * wi[:, None, :]  # -Ω⁻¹ C Ω⁻¹
+    i = np.arange(r)
+    out[:, i, r + i] = -wi
+    out[:, r + i, i] = wi
+    return out

@@ -61,6 +61,7 @@ def plot_fit(
     rng: np.random.Generator,
     draws: tuple[np.ndarray, np.ndarray] | None = None,
     dpi: int = 120,
+    title: str | None = None,
 ) -> Path:
     """Plot data against the posterior-predictive band, with residuals underneath.
 
@@ -86,6 +87,8 @@ def plot_fit(
         :func:`bayesbeam.inference.predictive.posterior_predictive`, each shape (n, T);
         then ``n_draws`` and ``rng`` are not used.
     dpi : int, default 120
+    title : str, optional
+        Title of the top panel; default names the trial, the model and the draws.
 
     Returns
     -------
@@ -120,7 +123,7 @@ def plot_fit(
     ax.plot(t, med, "-", lw=0.8, color="tab:red", label="posterior median model")
     ax.set_ylabel(f"{qty} [{unit}]")
     ax.legend(loc="upper right", fontsize="small")
-    ax.set_title(f"{getattr(trial, 'name', 'trial')}: model {result.model!r}, "
+    ax.set_title(title or f"{getattr(trial, 'name', 'trial')}: model {result.model!r}, "
                  f"{y_model.shape[0]} posterior draws")
     rx.plot(t, resid, "-", lw=0.5, color="k")
     for s in (1.645 * sig, -1.645 * sig):

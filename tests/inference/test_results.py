@@ -226,3 +226,17 @@ def test_plots_write_images(result, tmp_path):
     for p in (c, t):
         data = p.read_bytes()
         assert data[:8] == png and len(data) > 10_000
+
+
+def test_plot_corner_of_named_parameters(result, tmp_path):
+    png = b"\x89PNG\r\n\x1a\n"
+    two = result.plot_corner(tmp_path / "two.png", names=["gamma", "E"])
+    one = result.plot_corner(tmp_path / "one.png", names=["E"], truths=[7e10])
+    for p in (two, one):
+        data = p.read_bytes()
+        assert data[:8] == png and len(data) > 10_000
+    with pytest.raises(ValueError, match="sampled parameters"):
+        result.plot_corner(tmp_path / "bad.png", names=["E", "nope"])
+    with pytest.raises(ValueError, match="no parameter"):
+        result.plot_corner(tmp_path / "bad.png", names=[])
+    assert not (tmp_path / "bad.png").exists()

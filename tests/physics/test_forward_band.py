@@ -16,7 +16,7 @@ import pytest
 from bayesbeam.physics import propagate
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import Forward, ForwardError
-from bayesbeam.physics.sensor import _eigen_projection, band_limit
+from bayesbeam.physics.sensor import _eigen_projection, _modal_inverse, band_limit
 
 L, W, TH, RHO = 0.4, 0.0508, 0.002, 2700.0
 E = 70e9
@@ -119,3 +119,19 @@ def test_unlimited_band_is_the_full_model():
 def test_bad_bandwidth_is_refused(bad):
     with pytest.raises(ForwardError, match="bandwidth"):
         Forward(_beam(), "viscous", T[:10], n_elements=4, bandwidth=bad)
+
+
+def test_closed_form_inverse_of_a_modal_state_matrix():
+    # A [[0, Ω], [-Ω, -C]] with a full symmetric C and frequencies over four decades (the
+    # dropped block of a beam's modes): the closed form must be the inverse to round-off
+    # of the stiffest entries, checked by A A⁻¹ = I (no inverse computed by LU here).
+    rng = np.random.default_rng(3)
+    m = 12
+    w = np.sort(rng.uniform(1.0, 1e4, size=(3, m)), axis=1)
+    G = rng.standard_normal((3, m, m))
+    C = 1e-2 * (G @ np.swapaxes(G, 1, 2)) * np.sqrt(w[:, :, None] * w[:, None, :])
+    A = propagate.state_matrix(w, C)
+    P = A @ _modal_inverse(A)
+    scale = np.abs(A).max(axis=(1, 2)) * np.abs(_modal_inverse(A)).max(axis=(1, 2))
+    # Round-off of a product of two 2m-square matrices: ~2m ulp of the entries' scale.
+    assert np.max(np.abs(P - np.eye(2 * m)) / scale[:, None, None]) < 4 * m * 2.3e-16
