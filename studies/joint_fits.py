@@ -16,6 +16,16 @@ Two parts (``--part``):
     Five 1280-sample synthetic releases of the source's uniform beam (24-element
     generator), ``--model`` with E shared, to ESS ``--target-ess``: steps, ESS and wall
     time (the issue's benchmark: ESS >= 1000 within 5 minutes on 2 cores).
+``real``
+    The repeats of one free length of the public aluminium strip (``--length``, cm;
+    ``../shared/data/real``, read in place): 2 s windows from 0.1 s after the release
+    peak, resampled to 512 Hz, ``--model`` (default the uniform beam with a point mass
+    anywhere on the span, ``viscous+kv+added_mass+ar1_noise``) with free amplitudes of
+    the modes below 0.8 Nyquist. One joint fit with the material and the attachment
+    (E, mass, position: the same strip, clamp and sensor board in every repeat) shared
+    and the damping and noise per record, then each record alone. Reports the 90 %
+    intervals of E (GPa), the mass (g) and its distance from the tip (cm), single and
+    joint, their width ratios, and each record's adequacy.
 ``marginal``
     One trial (``--trial``; default: the first of ``bench``'s releases), one model:
     the single fit (sigma and w0 sampled) against the
@@ -26,6 +36,7 @@ Two parts (``--part``):
 Run from the repository root, e.g.::
 
     python studies/joint_fits.py --part shipped --beams beam2 --out studies/figures
+    python studies/joint_fits.py --part real --length 60 --target-ess 300
     python studies/joint_fits.py --part marginal --seeds 3
     python studies/joint_fits.py --part bench --model viscous+kv
 
@@ -107,6 +118,67 @@ def shipped(beams: list[str], settings: dict, say, save) -> list[dict]:
     return rows
 
 
+#: What the real part reports: parameter, scale to the unit shown, unit.
+REAL_SHOWN = (("E", 1e-9, "GPa"), ("added_mass", 1e3, "g"), ("tip_distance", 1e2, "cm"))
+
+
+def _real_intervals(result, length: float, label: str = "") -> dict:
+    """90 % intervals of E, the added mass and its distance from the tip (SI -> shown units)."""
+    X = result.theta_samples().reshape(-1, result.chain.ndim)
+    cols = {n: X[:, result.names.index(n + label)] for n in ("E", "added_mass",
+                                                              "added_mass_position")
+            if n + label in result.names}
+    if "added_mass_position" in cols:
+        cols["tip_distance"] = length - cols.pop("added_mass_position")
+    return {n: [v * scale for v in _interval(cols[n])] for n, scale, _ in REAL_SHOWN
+            if n in cols}
+
+
+def real(length_cm: int, model: str, settings: dict, say, save) -> dict:
+    """Joint fit of the repeats at one aluminium length, then each record alone."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from real_data import load, n_modes  # the real-data study's windows, one definition
+
+    from bayesbeam.trials.realdata import list_real_datasets
+
+    label = f"enes-alu-{length_cm}cm"
+    count = sum(1 for r in list_real_datasets() if r.kwargs.get("length_cm") == length_cm)
+    trials = [load(label, 2.0, 1 / 512, index=i) for i in range(count)]
+    k = min(n_modes(t) for t in trials)
+    shared = tuple(n for n in ("E", "added_mass", "added_mass_position")
+                   if n in parse_model(model).physical_params)
+    common = {"initial": f"modes:{k}", "n_elements": 10, **settings}
+    length = float(trials[0].beam.length)
+    out: dict = {"length_cm": length_cm, "model": model, "records": [t.name for t in trials],
+                 "initial": common["initial"], "shared": list(shared)}
+    t0 = time.perf_counter()
+    say(f"real: joint fit of {count} records at {length_cm} cm ({model}, shared {shared})")
+    jf = fit_joint(trials, model, shared=shared, seed=0, **common)
+    c = jf.result.chain
+    out["joint"] = {"intervals": _real_intervals(jf.result, length),
+                    "adequate": {lb: bool(v.adequacy.get("ok"))
+                                 for lb, v in zip(jf.labels, jf.trials, strict=True)},
+                    "converged": bool(c.converged), "ess_min": c.ess_min, "ndim": c.ndim,
+                    "steps": c.n_steps_total, "seconds": time.perf_counter() - t0}
+    out["single"] = []
+    save(out)
+    for i, tr in enumerate(trials):
+        say(f"real: single fit {i + 1}/{count} ({tr.name})")
+        t0 = time.perf_counter()
+        r = fit(tr, model, seed=i, **common)
+        out["single"].append({"record": tr.name, "intervals": _real_intervals(r, length),
+                              "adequate": bool(r.adequacy.get("ok")) if r.adequacy else None,
+                              "converged": bool(r.chain.converged),
+                              "seconds": time.perf_counter() - t0})
+        save(out)
+    joint = out["joint"]["intervals"]
+    out["width_ratio_median"] = {
+        n: float(np.median([(s["intervals"][n][2] - s["intervals"][n][0])
+                            for s in out["single"]]) / (joint[n][2] - joint[n][0]))
+        for n in joint}
+    return out
+
+
 def _bench_trials(model: str, n: int) -> list:
     """``n`` 1280-sample releases of the source's uniform beam (24-element generator)."""
     from bayesbeam.physics.beam import Beam
@@ -166,10 +238,13 @@ def bench(model: str, settings: dict, say) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--part", choices=("shipped", "marginal", "bench"), required=True)
+    ap.add_argument("--part", choices=("shipped", "real", "marginal", "bench"), required=True)
+    ap.add_argument("--length", type=int, default=60, help="aluminium length of --part real")
     ap.add_argument("--beams", default="beam1,beam2,beam3")
     ap.add_argument("--trial", default=None, help="trial of --part marginal")
-    ap.add_argument("--model", default="viscous+kv", help="model of --part marginal")
+    ap.add_argument("--model", default=None,
+                    help="model of --part marginal/bench (default viscous+kv) and real "
+                         "(default viscous+kv+added_mass+ar1_noise)")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--target-ess", type=float, default=1000.0)
     ap.add_argument("--max-steps", type=int, default=20000)
@@ -201,8 +276,31 @@ def main() -> None:
                       f"{r['root_spring']['q50']:.3g} (true {r['root_spring_true']:g}) | {sp} | "
                       f"{sum(r['adequate'].values())}/5 | "
                       f"{sum(r['without_root_spring']['adequate'].values())}/5 |")
+        elif args.part == "real":
+            def save_real(out: dict) -> None:
+                (args.out / "joint_real.json").write_text(
+                    json.dumps(out, indent=2, default=str) + "\n")
+
+            res = real(args.length, args.model or "viscous+kv+added_mass+ar1_noise", settings,
+                       say, save_real)
+            print(f"{res['length_cm']} cm, {len(res['records'])} records, {res['model']}, "
+                  f"{res['initial']}, shared {res['shared']}")
+            print("| fit | " + " | ".join(f"{n} [q05, q95] ({u})" for n, _, u in REAL_SHOWN)
+                  + " | adequate | converged |")
+            print("|---" * (len(REAL_SHOWN) + 3) + "|")
+            rows = [(s["record"], s["intervals"], str(s["adequate"]), s["converged"])
+                    for s in res["single"]]
+            j = res["joint"]
+            rows.append(("joint", j["intervals"], f"{sum(j['adequate'].values())}/"
+                         f"{len(j['adequate'])}", j["converged"]))
+            for name, iv, ok, conv in rows:
+                cells = " | ".join(f"{iv[n][1]:.4g} [{iv[n][0]:.4g}, {iv[n][2]:.4g}]"
+                                   if n in iv else "-" for n, _, _ in REAL_SHOWN)
+                print(f"| {name} | {cells} | {ok} | {conv} |")
+            print("median single/joint width ratio: " + ", ".join(
+                f"{n} {v:.2f}" for n, v in res["width_ratio_median"].items()))
         elif args.part == "bench":
-            res = bench(args.model, settings, say)
+            res = bench(args.model or "viscous+kv", settings, say)
             print("| model | trials x samples | ndim | walkers | steps | ESS min | converged "
                   "| sampling s | total s |")
             print("|---|---|---|---|---|---|---|---|---|")
@@ -210,7 +308,7 @@ def main() -> None:
                   f"{res['steps']} | {res['ess_min']:.0f} | {res['converged']} | "
                   f"{res['sampling_seconds']:.0f} | {res['total_seconds']:.0f} |")
         else:
-            res = marginal(args.trial, args.model, args.seeds, settings, say)
+            res = marginal(args.trial, args.model or "viscous+kv", args.seeds, settings, say)
             print("| seed | ESS/s sampled | ESS/s marginal | ratio | mean diffs (MCSE) |")
             print("|---|---|---|---|---|")
             for r in res["runs"]:

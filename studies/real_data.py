@@ -106,11 +106,14 @@ SMALL = {"records": ["enes-alu-40cm"], "duration": 1.0, "dt": 1 / 256, "n_elemen
 RATIOS = (1.0, 6.2669, 17.5475, 34.3861)
 
 
-def load(label: str, duration: float, dt: float):
-    """Load one record, cut to ``duration`` s and resample to step ``dt`` s."""
+def load(label: str, duration: float, dt: float, index: int = 0):
+    """Load one record, cut to ``duration`` s and resample to step ``dt`` s.
+
+    ``index`` chooses the repeat of an aluminium length (see ``list_real_datasets``).
+    """
     spec = {r[0]: r for r in RECORDS}[label]
     if spec[1] == "enes":
-        trial = load_enes(spec[2]["length_cm"], 0, duration=duration + 0.2)
+        trial = load_enes(spec[2]["length_cm"], index, duration=duration + 0.2)
     else:
         trial = load_hrshm(duration=duration + 0.2)
     trial = trial.resample(dt)

@@ -95,7 +95,9 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--resume", action="store_true",
                     help="continue the checkpoint OUTDIR/chain.h5 (same options required)")
     sp.add_argument("--priors", type=Path, default=None,
-                    help="TOML file with [priors.NAME] dist=... tables overriding the defaults")
+                    help="TOML file with [priors.NAME] dist=... tables overriding the defaults "
+                         "(with several trials: every trial's; a pooled NAME sets the "
+                         "population median's prior)")
     opts.add_elements_option(sp)
     opts.add_fixed_mesh_option(sp)
     sp.add_argument("--target-ess", type=float, default=FIT_DEFAULTS.target_ess,

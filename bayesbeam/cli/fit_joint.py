@@ -70,13 +70,12 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
     from bayesbeam.inference.joint import JointError
     from bayesbeam.inference.joint_fit import fit_joint
     from bayesbeam.inference.predictive import PPC_DRAWS, posterior_predictive
+    from bayesbeam.inference.problem import default_priors
     from bayesbeam.physics.models import parse_model
     from bayesbeam.report.plots import plot_fit
+    from bayesbeam.stats.priors import PriorSet
     from bayesbeam.stats.sampling import NotConvergedWarning
 
-    if args.priors is not None:
-        raise error("--priors is not supported with several trials yet; the joint fit uses "
-                    "each trial's default priors (fit one trial to override them)")
     parse_model(args.model)
     paths = list(args.trial)
     if len({p.resolve() for p in paths}) != len(paths):
@@ -98,12 +97,19 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
                     "give --initial")
     initial = initials.pop()
     shared, pooled = split_names(args.shared), split_names(args.pooled)
+    overrides = None
+    if args.priors is not None:  # the file's entries, applied to every trial
+        base = default_priors(trials[0], model, n_elements=args.elements, initial=initial)
+        full = PriorSet.from_toml(args.priors, base=base)
+        overrides = {n: full[n] for n in full if full[n] != base[n]}
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     record = {"trial_sha256": [t.sha256 for t in trials], "model": model.name,
               "shared": list(shared), "pooled": list(pooled),
               "marginalise": not args.no_marginalise, "seed": int(args.seed),
-              "n_elements": int(args.elements), "initial": initial}
+              "n_elements": int(args.elements), "initial": initial,
+              "priors": None if overrides is None else {n: p.to_dict()
+                                                        for n, p in overrides.items()}}
     run_path = outdir / "run.json"
     if args.resume:
         check_resume(outdir, record, error)
@@ -114,7 +120,8 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
         try:
             jf = fit_joint(trials, model, shared=shared, pooled=pooled,
                            marginalise=not args.no_marginalise, initial=initial, outdir=outdir,
-                           resume=args.resume, progress=True, **opts.fit_settings(args))
+                           resume=args.resume, progress=True, priors=overrides,
+                           **opts.fit_settings(args))
         except JointError as exc:
             raise error(str(exc)) from None
     for w in caught:

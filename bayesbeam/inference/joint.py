@@ -44,7 +44,7 @@ first-mode hysteresis damping per unit ``c_d I``, not the kernel strength ``a``.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -123,12 +123,18 @@ class JointProblem:
         Hermite elements of every trial's forward model.
     initial : str
         Initial-condition kind (:class:`bayesbeam.physics.forward.Forward`).
+    priors : mapping of name -> Prior or dict, optional
+        Overrides of the default priors (:func:`~bayesbeam.inference.problem.default_priors`),
+        by a single trial's parameter names, applied to every trial. A shared name's
+        prior is then this one; a pooled name's sets its population median's prior.
 
     Raises
     ------
     JointError
         On no trials, unknown, overlapping or unpoolable names, or a prior that cannot
         be marginalised in closed form.
+    ValueError
+        On an override of a name the model does not have, or an invalid prior.
     """
 
     def __init__(
@@ -141,6 +147,7 @@ class JointProblem:
         marginalise: bool = True,
         n_elements: int = 16,
         initial: str = "release",
+        priors: Mapping[str, Any] | None = None,
     ) -> None:
         trials = list(trials)
         if not trials:
@@ -151,7 +158,9 @@ class JointProblem:
         self.n_elements = int(n_elements)
         self.initial = initial
         self.marginalise = bool(marginalise)
-        self.problems = tuple(Problem(t, self.model, n_elements=self.n_elements, initial=initial)
+        self.overrides = dict(priors or {})
+        self.problems = tuple(Problem(t, self.model, self.overrides or None,
+                                      n_elements=self.n_elements, initial=initial)
                               for t in trials)
         base = self.problems[0].names
         self.shared = tuple(dict.fromkeys(shared))

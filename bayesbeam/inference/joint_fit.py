@@ -291,6 +291,7 @@ def fit_joint(
     resume: bool = False,
     progress: bool | None = None,
     sampler_options: Mapping[str, Any] | None = None,
+    priors: Mapping[str, Any] | None = None,
 ) -> JointFit:
     """Sample the joint posterior of one model on several trials.
 
@@ -313,6 +314,9 @@ def fit_joint(
         Progress lines on stderr (None: only on a terminal).
     sampler_options : mapping, optional
         As for :func:`bayesbeam.inference.fit.fit`.
+    priors : mapping of name -> Prior or dict, optional
+        Overrides of every trial's default priors (see
+        :class:`~bayesbeam.inference.joint.JointProblem`).
 
     Returns
     -------
@@ -331,7 +335,7 @@ def fit_joint(
 
     # Build (and so check the names) before any expensive step.
     jp = JointProblem(trials, model, shared=shared, pooled=pooled, marginalise=marginalise,
-                      n_elements=n_elements, initial=initial)
+                      n_elements=n_elements, initial=initial, priors=priors)
     starts, meshes = [], []
     for i, pb in enumerate(jp.problems):
         say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]})")
@@ -342,7 +346,7 @@ def fit_joint(
     n_el = max(int(m.get("n_elements", n_elements)) for m in meshes)
     if n_el != jp.n_elements:
         jp = JointProblem(trials, model, shared=shared, pooled=pooled, marginalise=marginalise,
-                          n_elements=n_el, initial=initial)
+                          n_elements=n_el, initial=initial, priors=priors)
     x0 = jp.joint_theta(starts)
     lo, hi = jp.priors.bounds.T
     span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
@@ -378,6 +382,7 @@ def fit_joint(
         "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh), "initial": initial,
         "nwalkers": nwalkers, "target_ess": target_ess, "max_steps": max_steps,
         "sampler_options": dict(sampler_options or {}), "seed": seed,
+        "prior_overrides": {n: jp.problems[0].priors[n].to_dict() for n in jp.overrides},
         "n_samples_data": [int(t.times.size) for t in trials],
         "log_prob_map": lp_map, "total_seconds": time.perf_counter() - t_start,
         "noise": "ar1" if "rho" in jp.problems[0].names else "iid",

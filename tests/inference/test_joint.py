@@ -45,6 +45,23 @@ def test_names_shared_pooled_per_trial(trials):
     assert jq.priors["E"] == jq.problems[0].priors["E"]
 
 
+def test_prior_overrides_apply_to_every_trial(trials):
+    from bayesbeam.stats.families import LogUniform
+
+    narrow = LogUniform(5e10, 8e10)
+    jp = JointProblem(trials, "viscous", shared=("E",), pooled=("gamma",), n_elements=NE,
+                      priors={"E": narrow, "gamma": {"dist": "loguniform", "lo": 0.01,
+                                                     "hi": 1.0}})
+    assert jp.priors["E"] == narrow
+    assert all(pb.priors["E"] == narrow for pb in jp.problems)
+    assert jp.priors["gamma_median"] == LogUniform(0.01, 1.0)
+    assert jp.overrides.keys() == {"E", "gamma"}
+    default = JointProblem(trials, "viscous", shared=("E",), n_elements=NE)
+    assert default.priors["E"] != narrow
+    with pytest.raises(ValueError, match="does not have"):
+        JointProblem(trials, "viscous", shared=("E",), n_elements=NE, priors={"c_d": narrow})
+
+
 def test_labels_unique():
     class T:
         def __init__(self, name):

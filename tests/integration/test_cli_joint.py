@@ -42,11 +42,16 @@ def trial_files(tmp_path_factory):
 @pytest.mark.slow
 def test_joint_fit_json_has_single_fit_keys_and_trial_names(trial_files, tmp_path, capsys):
     out = tmp_path / "joint"
+    priors = tmp_path / "priors.toml"  # a prior file applies to every trial
+    priors.write_text('[priors.E]\ndist = "loguniform"\nlo = 5e10\nhi = 8e10\n')
     assert _run(fit_cli, ["fit", *trial_files, "--model", "viscous", "--shared", "E", "-o",
                           str(out), "--json", "--elements", "6", "--max-steps", "400",
-                          "--target-ess", "100", "--fixed-mesh"]) == 0
+                          "--target-ess", "100", "--fixed-mesh", "--priors", str(priors)]) == 0
     payload = json.loads(capsys.readouterr().out)
     assert set(payload["posterior"]["E"]) == {"mean", "sd", "q05", "q50", "q95"}
+    assert 5e10 <= payload["posterior"]["E"]["q05"] <= payload["posterior"]["E"]["q95"] <= 8e10
+    record = json.loads((out / "run.json").read_text())["record"]
+    assert record["priors"]["E"]["lo"] == 5e10
     for lb in ("rel1", "rel2", "rel3"):
         assert f"gamma[{lb}]" in payload["posterior"]
         assert f"w0[{lb}]" in payload["posterior"]  # integrated out, drawn for the report
@@ -65,6 +70,15 @@ def test_joint_fit_bad_name_is_one_clear_line(trial_files, tmp_path):
     with pytest.raises(fit_cli.FitCLIError, match="not parameters of model"):
         _run(fit_cli, ["fit", *trial_files[:2], "--model", "viscous", "--shared", "EE",
                        "-o", str(tmp_path / "x"), "--elements", "6", "--fixed-mesh"])
+
+
+def test_joint_fit_prior_of_unknown_name_is_one_clear_line(trial_files, tmp_path):
+    priors = tmp_path / "priors.toml"
+    priors.write_text('[priors.c_d]\ndist = "loguniform"\nlo = 1e5\nhi = 1e7\n')
+    with pytest.raises(ValueError, match="unknown parameter"):
+        _run(fit_cli, ["fit", *trial_files[:2], "--model", "viscous", "--shared", "E",
+                       "-o", str(tmp_path / "x"), "--elements", "6", "--fixed-mesh",
+                       "--priors", str(priors)])
 
 
 def test_compare_several_trials_needs_shared(trial_files, tmp_path):
