@@ -41,6 +41,7 @@ import importlib.metadata
 import math
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,7 @@ __all__ = [
     "json_default",
     "lazy_exports",
     "one_blas_thread",
+    "job_guard",
     "progress_bar",
     "progress_note",
     "stderr_is_live",
@@ -84,6 +86,31 @@ def one_blas_thread() -> Any:
     from threadpoolctl import threadpool_limits
 
     return threadpool_limits(limits=1, user_api="blas")
+
+
+#: One fit job at a time per process (re-entrant: a diagnosis job runs fits itself). The
+#: warning filters that a job uses to record the sampler's warnings and the BLAS thread
+#: limit are process-wide, so jobs in threads of one process (a threaded Dask worker)
+#: must not overlap; parallelism comes from processes.
+_JOB_LOCK = threading.RLock()
+
+
+@contextlib.contextmanager
+def job_guard() -> Iterator[None]:
+    """Run one executor job (a fit, a comparison, a diagnosis) alone, on one BLAS thread.
+
+    Alone in its process: other jobs in threads of the same process wait.
+
+    One thread per job keeps parallel workers from oversubscribing the cores (the
+    matrices are small: threads cost more than they give) and the floating-point
+    reduction order the same wherever the job runs.
+
+    Yields
+    ------
+    None
+    """
+    with _JOB_LOCK, one_blas_thread():
+        yield
 
 
 def distribution_version(dist: str, missing: str = "0+unknown") -> str:

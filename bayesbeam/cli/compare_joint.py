@@ -12,7 +12,8 @@ and ranks them by bridge-sampling evidence with the package's tie rule; PSIS-LOO
 all trials' samples is reported beside it. Writes ``comparison.json`` (one record per
 model: ``variants``, ``best``, ``tied``, ``decided``, ``delta_log_z`` ± ``_err``,
 ``verdict``) and ``comparison.txt`` into OUTDIR, and each variant's joint fit summary
-in ``OUTDIR/<model>/<variant>/summary.json``.
+in ``OUTDIR/<model>/<variant>/summary.json``. ``--jobs N`` (or ``--scheduler``) fits the
+variants in parallel.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ def run_joint(args: argparse.Namespace, models: list[str], error: type[Exception
     from bayesbeam.cli.outdir import stamp
     from bayesbeam.comparison.joint import compare_joint, variant_name
     from bayesbeam.inference.joint import JointError
+    from bayesbeam.jobs.executor import make_executor
     from bayesbeam.stats.sampling import NotConvergedWarning
 
     if args.prior_odds:
@@ -80,12 +82,15 @@ def run_joint(args: argparse.Namespace, models: list[str], error: type[Exception
     records, texts = {}, []
     for model in models:
         opts.say(f"compare: {model}: {len(variants)} joint variants on {len(trials)} trials")
-        with warnings.catch_warnings(record=True) as caught:
+        # --jobs/--scheduler fit the variants in parallel (same numbers as serial; a
+        # worker's warnings come back as the scores' notes, shown in the table).
+        with warnings.catch_warnings(record=True) as caught, \
+                make_executor(args.jobs, args.scheduler) as executor:
             warnings.simplefilter("always", NotConvergedWarning)
             try:
                 settings = opts.fit_settings(args)  # holds the seed
                 cmp = compare_joint(trials, model, variants, threshold=threshold,
-                                    progress=True, **settings)
+                                    progress=True, executor=executor, **settings)
             except JointError as exc:
                 raise error(str(exc)) from None
         for w in caught:

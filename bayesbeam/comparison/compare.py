@@ -21,7 +21,7 @@ Dask client's executor; the command line makes one with
 the trial itself (its arrays and metadata, pickled), the model, the settings and the
 seed; all models share the seed, as the tasks of :mod:`bayesbeam.jobs.tasks` do, so a
 model's numbers depend neither on the order of the models nor on the executor. Jobs run
-one at a time per process with one BLAS thread (:func:`_job_guard`), serial ones too:
+one at a time per process with one BLAS thread (:func:`bayesbeam._util.job_guard`), serial ones too:
 a parallel comparison is bitwise the serial one. A progress bar over the models
 (:func:`bayesbeam._util.progress_bar`) says which model is being fitted.
 
@@ -57,12 +57,10 @@ equal by default) carry first-order errors from the evidence errors,
 
 from __future__ import annotations
 
-import contextlib
 import html
 import json
 import math
-import threading
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -73,7 +71,7 @@ from bayesbeam._util import (
     SCHEMA_VERSION,
     atomic_path,
     finite_json,
-    one_blas_thread,
+    job_guard,
     progress_bar,
     progress_note,
     stderr_is_live,
@@ -97,26 +95,6 @@ __all__ = [
     "compare",
     "compare_scores",
 ]
-
-
-#: One fit job at a time per process (re-entrant: a diagnosis job runs fits itself). The
-#: warning filters that :func:`evaluate` uses to record the sampler's warnings and the
-#: BLAS thread limit are process-wide, so jobs in threads of one process (a threaded Dask
-#: worker) must not overlap; parallelism comes from processes.
-_JOB_LOCK = threading.RLock()
-
-
-@contextlib.contextmanager
-def _job_guard() -> Iterator[None]:
-    """Run one executor job: alone in its process, with one BLAS thread.
-
-    One thread per job keeps parallel workers from oversubscribing the cores (the
-    matrices are small: threads cost more than they give) and the floating-point
-    reduction order the same wherever the job runs.
-    """
-    with _JOB_LOCK, one_blas_thread():
-        yield
-
 
 
 def _fmt(x: float, spec: str = ".2f") -> str:
@@ -775,7 +753,7 @@ def _evaluate_job(job: Mapping[str, Any]) -> ModelScore:
         Pickles back from a worker (:meth:`FitResult.__reduce
         <bayesbeam.inference.results.FitResult.__reduce__>`).
     """
-    with _job_guard():
+    with job_guard():
         score = evaluate(
             job["trial"], job["model"], seed=job["seed"], priors=job["priors"],
             n_loo_draws=job["n_loo_draws"], proposal=job["proposal"],

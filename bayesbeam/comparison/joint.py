@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import SCHEMA_VERSION, finite_json
+from bayesbeam._util import SCHEMA_VERSION, finite_json, job_guard
 from bayesbeam.inference.joint_fit import MAX_DRAWS, JointFit, fit_joint
 from bayesbeam.stats.criteria import LOO, ParetoKWarning, loo
 from bayesbeam.stats.evidence import Evidence, EvidenceError, bridge_sampling
@@ -238,6 +238,7 @@ def compare_joint(
     *,
     seed: int = 0,
     threshold: float = DEFAULT_THRESHOLD,
+    executor: Any = None,
     **fit_kw: Any,
 ) -> JointComparison:
     """Fit and score joint variants of one model, then rank them.
@@ -252,6 +253,9 @@ def compare_joint(
         Seed of every fit and score (the same for each variant).
     threshold : float
         Tie threshold in nats (:func:`rank_scores`).
+    executor : concurrent.futures.Executor, optional
+        Fits the variants in parallel (as :func:`bayesbeam.comparison.compare.compare`;
+        the numbers do not depend on it); the sampler's progress lines are then off.
     **fit_kw
         Further keywords of :func:`bayesbeam.inference.joint_fit.fit_joint`.
 
@@ -259,9 +263,22 @@ def compare_joint(
     -------
     JointComparison
     """
-    scores = []
-    for shared, pooled in variants:
-        jf = fit_joint(trials, model, shared=tuple(shared), pooled=tuple(pooled), seed=seed,
-                       **fit_kw)
-        scores.append(score_joint(jf, seed=seed))
+    jobs = [{"trials": list(trials), "model": model, "shared": tuple(shared),
+             "pooled": tuple(pooled), "seed": int(seed),
+             "fit_kw": dict(fit_kw) if executor is None else {**fit_kw, "progress": False}}
+            for shared, pooled in variants]
+    scores = ([_variant_job(job) for job in jobs] if executor is None
+              else list(executor.map(_variant_job, jobs)))
     return rank_scores(scores, threshold)
+
+
+def _variant_job(job: dict[str, Any]) -> JointScore:
+    """Fit and score one variant of :func:`compare_joint` (the function an executor maps).
+
+    Module-level and fed plain data, so that it pickles to worker processes; one job at
+    a time per process with one BLAS thread (:func:`bayesbeam._util.job_guard`).
+    """
+    with job_guard():
+        jf = fit_joint(job["trials"], job["model"], shared=job["shared"], pooled=job["pooled"],
+                       seed=job["seed"], **job["fit_kw"])
+        return score_joint(jf, seed=job["seed"])

@@ -417,10 +417,10 @@ def _optimise_job(job: Mapping[str, Any]) -> tuple[np.ndarray | None, float, flo
     seconds : float
         Wall-clock time of the search.
     """
-    from bayesbeam.comparison.compare import _job_guard
+    from bayesbeam._util import job_guard
 
     t0 = time.perf_counter()
-    with _job_guard():
+    with job_guard():
         eng, st = _worker_state(job)
         st.lp = float(job["lp"])
         eng.optimise(st, job["starts"])
@@ -443,11 +443,11 @@ def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:
         The sampler's notes (e.g. not converged).
     seconds : float
     """
-    from bayesbeam.comparison.compare import _job_guard
+    from bayesbeam._util import job_guard
 
     t0 = time.perf_counter()
     notes: list[str] = []
-    with _job_guard():
+    with job_guard():
         eng, st = _worker_state(job)
         score = eng._sample_and_score(st, int(job["seed"]), notes)
     return score, notes, time.perf_counter() - t0

@@ -235,11 +235,11 @@ def run_diagnosis_task(spec: Mapping[str, Any]) -> tuple[dict[str, bytes], dict[
     """
     import tempfile
 
-    from bayesbeam.comparison.compare import _job_guard
+    from bayesbeam._util import job_guard
     from bayesbeam.diagnosis.diagnose import diagnose
 
     t0 = time.perf_counter()
-    with _job_guard():  # alone in its process, one BLAS thread (as every fit task)
+    with job_guard():  # alone in its process, one BLAS thread (as every fit task)
         trial = spec["trial"]
         d = diagnose(
             trial, spec["baseline"], seed=int(spec["seed"]), max_rounds=int(spec["max_rounds"]),

@@ -7,7 +7,7 @@ processes or Dask workers) computes the same bytes wherever it runs.
 :func:`run_fit_task` writes a task's files into a scratch folder and returns their
 contents (the folder layout is in :mod:`bayesbeam.jobs.executor`); each task runs with
 the BLAS thread pool limited to one thread, and one task at a time per process (the
-guard of every fit job, :func:`bayesbeam.comparison.compare._job_guard`).
+guard of every fit job, :func:`bayesbeam._util.job_guard`).
 
 :func:`task_key` is the task's cache key: the SHA-256 of its trial (data file and TOML),
 model, settings and seed. Scheduling, the cache lookup and reading results back are in
@@ -351,10 +351,10 @@ def run_fit_task(task: FitTask) -> tuple[dict[str, bytes], dict[str, Any], float
         When the fit fails; the message names the task and the cause.
     """
     # One task at a time per process, with one BLAS thread: the guard of every fit job
-    # (bayesbeam.comparison.compare._job_guard says why).
-    from bayesbeam.comparison.compare import _job_guard
+    # (bayesbeam._util.job_guard says why).
+    from bayesbeam._util import job_guard
 
-    with _job_guard():
+    with job_guard():
         try:
             return _run_locked(task)
         except Exception as err:  # say which task failed; the cause stays chained
