@@ -362,6 +362,11 @@ class Forward:
             # a batch only scales them: q0 = Φᵀ M c0 and q0' = Φᵀ M M⁻¹ tip p0 = Φᵀ tip p0.
             self._q_release = phi.T @ (self.fe.M @ self._release)
             self._q_impulse = phi.T @ self.fe.tip
+        # Structure that changes K only (root spring, stiffness gradient): M and so its
+        # Cholesky inverse are the same for every set; factor once.
+        self._Li = None
+        if not self._fixed and not {"tip_mass", "added_mass"} & set(self.model.structural):
+            self._Li = np.linalg.inv(np.linalg.cholesky(self.fe.M))
         # Classical damping with shared shapes: _modal_image returned exactly diagonal
         # images for the laws present (G ∝ M, KV ∝ K to 1e-13), and no law or structure
         # couples the modes.
@@ -445,6 +450,8 @@ class Forward:
         kr = self._get(theta, "root_spring", self.beam.root_spring or 0.0)
         g = self._get(theta, "stiffness_gradient")
         M = fe.M[None] + mt[:, None, None] * fe.M_tip[None]
+        if self._Li is not None:  # M is the beam's own (tip_mass is 0 here)
+            M = np.broadcast_to(fe.M, (B,) + fe.M.shape)
         if "added_mass" in self.model.structural:
             # A point mass m at x adds m N(x)ᵀ N(x) (as fem.assemble does for Beam.masses).
             x = np.clip(self._get(theta, "added_mass_position"), 0.0, fe.length)
@@ -458,12 +465,15 @@ class Forward:
         # simulate() flags them invalid instead of raising.
         bad = ~(np.isfinite(M).all(axis=(1, 2)) & np.isfinite(K).all(axis=(1, 2)))
         if bad.any():
-            M[bad] = fe.M
+            if self._Li is None:
+                M[bad] = fe.M
             K[bad] = fe.K + fe.K_root  # positive definite with or without a root dof
         # Generalised symmetric eigenproblem via Cholesky of M (positive definite: the beam's
         # own M plus a tip mass >= 0): K̃ = L⁻¹ K L⁻ᵀ.
-        Lc = np.linalg.cholesky(M)
-        Li = np.linalg.inv(Lc)
+        if self._Li is None:
+            Li = np.linalg.inv(np.linalg.cholesky(M))
+        else:
+            Li = np.broadcast_to(self._Li, M.shape)
         Kt = Li @ K @ np.swapaxes(Li, 1, 2)
         Kt = 0.5 * (Kt + np.swapaxes(Kt, 1, 2))
         bad |= ~np.isfinite(Kt).all(axis=(1, 2))
