@@ -17,13 +17,15 @@ Two parts (``--part``):
     generator), ``--model`` with E shared, to ESS ``--target-ess``: steps, ESS and wall
     time (the issue's benchmark: ESS >= 1000 within 5 minutes on 2 cores).
 ``real``
-    The repeats of one free length of the public aluminium strip (``--length``, cm;
+    The records of one or more free lengths of the public aluminium strip (``--length``,
+    cm, e.g. ``60`` or ``30,40,50,60``;
     ``../shared/data/real``, read in place): 2 s windows from 0.1 s after the release
     peak, resampled to 512 Hz, ``--model`` (default the uniform beam with a point mass
     anywhere on the span, ``viscous+kv+added_mass+ar1_noise``) with free amplitudes of
     the modes below 0.8 Nyquist. One joint fit with the material and the attachment
-    (E, mass, position: the same strip, clamp and sensor board in every repeat) shared
-    and the damping and noise per record, then each record alone. Reports the 90 %
+    (E, mass, and its position: from the clamp at one length, from the free end over
+    several; the same strip and sensor board in every record) shared and the damping
+    and noise per record, then each record alone. Reports the 90 %
     intervals of E (GPa), the mass (g) and its distance from the tip (cm), single and
     joint, their width ratios, and each record's adequacy.
 ``marginal``
@@ -57,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesbeam.inference.fit import fit
+from bayesbeam.inference.joint import TIP_DISTANCE
 from bayesbeam.inference.joint_fit import fit_joint
 from bayesbeam.jobs.demo import find_data
 from bayesbeam.physics.models import parse_model
@@ -122,40 +125,47 @@ def shipped(beams: list[str], settings: dict, say, save) -> list[dict]:
 REAL_SHOWN = (("E", 1e-9, "GPa"), ("added_mass", 1e3, "g"), ("tip_distance", 1e2, "cm"))
 
 
-def _real_intervals(result, length: float, label: str = "") -> dict:
+def _real_intervals(result, length: float) -> dict:
     """90 % intervals of E, the added mass and its distance from the tip (SI -> shown units)."""
     X = result.theta_samples().reshape(-1, result.chain.ndim)
-    cols = {n: X[:, result.names.index(n + label)] for n in ("E", "added_mass",
-                                                              "added_mass_position")
-            if n + label in result.names}
+    cols = {n: X[:, result.names.index(n)] for n in ("E", "added_mass", "added_mass_position",
+                                                     TIP_DISTANCE) if n in result.names}
     if "added_mass_position" in cols:
         cols["tip_distance"] = length - cols.pop("added_mass_position")
+    if TIP_DISTANCE in cols:
+        cols["tip_distance"] = cols.pop(TIP_DISTANCE)
     return {n: [v * scale for v in _interval(cols[n])] for n, scale, _ in REAL_SHOWN
             if n in cols}
 
 
-def real(length_cm: int, model: str, settings: dict, say, save) -> dict:
-    """Joint fit of the repeats at one aluminium length, then each record alone."""
+def real(lengths: list[int], model: str, settings: dict, say, save) -> dict:
+    """Joint fit of the aluminium records at ``lengths`` (cm), then each record alone.
+
+    One length: the attachment's position from the clamp is shared; several: its
+    distance from the free end (``added_mass_tip_distance``).
+    """
     sys.path.insert(0, str(Path(__file__).parent))
     from real_data import load, n_modes  # the real-data study's windows, one definition
 
     from bayesbeam.trials.realdata import list_real_datasets
 
-    label = f"enes-alu-{length_cm}cm"
-    count = sum(1 for r in list_real_datasets() if r.kwargs.get("length_cm") == length_cm)
-    trials = [load(label, 2.0, 1 / 512, index=i) for i in range(count)]
+    trials = []
+    for length_cm in lengths:
+        count = sum(1 for r in list_real_datasets() if r.kwargs.get("length_cm") == length_cm)
+        trials += [load(f"enes-alu-{length_cm}cm", 2.0, 1 / 512, index=i) for i in range(count)]
     k = min(n_modes(t) for t in trials)
-    shared = tuple(n for n in ("E", "added_mass", "added_mass_position")
-                   if n in parse_model(model).physical_params)
+    where = "added_mass_position" if len(set(lengths)) == 1 else TIP_DISTANCE
+    physical = parse_model(model).physical_params
+    shared = tuple(n for n in ("E", "added_mass") if n in physical)
+    shared += (where,) if "added_mass_position" in physical else ()
     common = {"initial": f"modes:{k}", "n_elements": 10, **settings}
-    length = float(trials[0].beam.length)
-    out: dict = {"length_cm": length_cm, "model": model, "records": [t.name for t in trials],
+    out: dict = {"lengths_cm": lengths, "model": model, "records": [t.name for t in trials],
                  "initial": common["initial"], "shared": list(shared)}
     t0 = time.perf_counter()
-    say(f"real: joint fit of {count} records at {length_cm} cm ({model}, shared {shared})")
+    say(f"real: joint fit of {len(trials)} records at {lengths} cm ({model}, shared {shared})")
     jf = fit_joint(trials, model, shared=shared, seed=0, **common)
     c = jf.result.chain
-    out["joint"] = {"intervals": _real_intervals(jf.result, length),
+    out["joint"] = {"intervals": _real_intervals(jf.result, float(trials[0].beam.length)),
                     "adequate": {lb: bool(v.adequacy.get("ok"))
                                  for lb, v in zip(jf.labels, jf.trials, strict=True)},
                     "converged": bool(c.converged), "ess_min": c.ess_min, "ndim": c.ndim,
@@ -163,10 +173,11 @@ def real(length_cm: int, model: str, settings: dict, say, save) -> dict:
     out["single"] = []
     save(out)
     for i, tr in enumerate(trials):
-        say(f"real: single fit {i + 1}/{count} ({tr.name})")
+        say(f"real: single fit {i + 1}/{len(trials)} ({tr.name})")
         t0 = time.perf_counter()
         r = fit(tr, model, seed=i, **common)
-        out["single"].append({"record": tr.name, "intervals": _real_intervals(r, length),
+        out["single"].append({"record": tr.name,
+                              "intervals": _real_intervals(r, float(tr.beam.length)),
                               "adequate": bool(r.adequacy.get("ok")) if r.adequacy else None,
                               "converged": bool(r.chain.converged),
                               "seconds": time.perf_counter() - t0})
@@ -239,7 +250,8 @@ def bench(model: str, settings: dict, say) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--part", choices=("shipped", "real", "marginal", "bench"), required=True)
-    ap.add_argument("--length", type=int, default=60, help="aluminium length of --part real")
+    ap.add_argument("--length", default="60",
+                    help="aluminium length(s) of --part real, cm, comma-separated")
     ap.add_argument("--beams", default="beam1,beam2,beam3")
     ap.add_argument("--trial", default=None, help="trial of --part marginal")
     ap.add_argument("--model", default=None,
@@ -281,9 +293,9 @@ def main() -> None:
                 (args.out / "joint_real.json").write_text(
                     json.dumps(out, indent=2, default=str) + "\n")
 
-            res = real(args.length, args.model or "viscous+kv+added_mass+ar1_noise", settings,
-                       say, save_real)
-            print(f"{res['length_cm']} cm, {len(res['records'])} records, {res['model']}, "
+            res = real([int(v) for v in args.length.split(",")],
+                       args.model or "viscous+kv+added_mass+ar1_noise", settings, say, save_real)
+            print(f"{res['lengths_cm']} cm, {len(res['records'])} records, {res['model']}, "
                   f"{res['initial']}, shared {res['shared']}")
             print("| fit | " + " | ".join(f"{n} [q05, q95] ({u})" for n, _, u in REAL_SHOWN)
                   + " | adequate | converged |")

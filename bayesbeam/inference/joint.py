@@ -26,6 +26,12 @@ priors); the joint sampling space holds
 * **per-trial** parameters, named ``NAME[TRIAL]`` (every other physical parameter,
   the initial condition and the noise).
 
+An attachment that sits at one distance from the *free end* whatever the clamped length
+(a sensor board on a strip clamped at several free lengths) is shared as
+``added_mass_tip_distance`` (:data:`TIP_DISTANCE`, m from the tip): trial i's
+``added_mass_position`` (from the clamp) is ``L_i - d``, and the prior of ``d`` is
+uniform over the distances every trial's position prior allows.
+
 Marginalised nuisance parameters (``marginalise=True``, the default): the noise scale
 ``sigma`` and the amplitudes the signal is linear in (``w0``, ``p0`` or ``A_k, B_k``)
 are integrated out of each trial's likelihood in closed form under their own default
@@ -44,6 +50,7 @@ first-mode hysteresis damping per unit ``c_d I``, not the kernel strength ``a``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -56,7 +63,7 @@ from bayesbeam.stats.marginal import ar1_whiten, draw_conditional, marginal_logl
 from bayesbeam.stats.priors import PriorSet
 from bayesbeam.trials.trial import Trial
 
-__all__ = ["JointError", "JointProblem", "PoolCoordinates", "trial_labels"]
+__all__ = ["TIP_DISTANCE", "JointError", "JointProblem", "PoolCoordinates", "trial_labels"]
 
 #: Scale of the HalfNormal prior of a pooled parameter's spread (sd of its log).
 SPREAD_SCALE = 1.0
@@ -103,6 +110,28 @@ def _envelope(priors: Sequence[Prior], name: str) -> Prior:
     )
 
 
+#: The shared distance of an added mass from the free end (m), for trials of different
+#: free length (see the module docstring).
+TIP_DISTANCE = "added_mass_tip_distance"
+
+
+def _tip_distance_prior(problems: Sequence[Problem]) -> Prior:
+    """Uniform prior of ``d = L_i - x_i`` that every trial's Uniform prior on ``x_i`` allows."""
+    lo, hi = 0.0, math.inf
+    for pb in problems:
+        p = pb.priors["added_mass_position"]
+        if not isinstance(p, Uniform):
+            raise JointError(
+                f"{TIP_DISTANCE} needs a Uniform prior on added_mass_position; trial "
+                f"{pb.trial.name!r} has {p.to_dict()}")
+        length = float(pb.trial.beam.length)
+        lo, hi = max(lo, length - p.hi), min(hi, length - p.lo)
+    if not hi > lo:
+        raise JointError(f"the trials' added_mass_position priors allow no common distance "
+                         f"from the tip ({TIP_DISTANCE}); widen them")
+    return Uniform(lo, hi)
+
+
 class JointProblem:
     """Log posterior of one model on several trials, vectorised over parameter sets.
 
@@ -113,7 +142,9 @@ class JointProblem:
     model : str or Model
         The same model for every trial.
     shared : iterable of str
-        Sampled names with one value for all trials (e.g. ``("E",)``).
+        Sampled names with one value for all trials (e.g. ``("E",)``); with an added
+        mass, :data:`TIP_DISTANCE` shares its distance from the free end instead of
+        ``added_mass_position`` (trials of different length).
     pooled : iterable of str
         Sampled names drawn per trial from a log-normal population; their default
         prior must be on ``log x`` (LogUniform: damping, masses, root spring, b).
@@ -171,7 +202,8 @@ class JointProblem:
         self.marginalised = marg
         entries: list[tuple[str, Prior]] = []
         for n in self.shared:
-            entries.append((n, _envelope([pb.priors[n] for pb in self.problems], n)))
+            entries.append((n, _tip_distance_prior(self.problems) if n == TIP_DISTANCE
+                            else _envelope([pb.priors[n] for pb in self.problems], n)))
         for n in self.pooled:
             entries.append((f"{n}_median", _envelope([pb.priors[n] for pb in self.problems], n)))
             entries.append((f"{n}_spread", HalfNormal(SPREAD_SCALE)))
@@ -179,17 +211,19 @@ class JointProblem:
             for n in base:
                 if n in self.pooled:
                     entries.append((f"{n}_z[{label}]", Normal(0.0, 1.0)))
-                elif n not in self.shared and n not in marg:
+                elif n not in self.shared and n not in marg and not self._from_tip(n):
                     entries.append((f"{n}[{label}]", pb.priors[n]))
         self.priors = PriorSet(entries)
         self.names = self.priors.names
         col = {n: j for j, n in enumerate(self.names)}
         # Per trial and per column of its Problem: where the value comes from.
         self._src: list[list[tuple[Any, ...]]] = []
-        for label in self.labels:
+        for label, pb in zip(self.labels, self.problems, strict=True):
             src: list[tuple[Any, ...]] = []
             for n in base:
-                if n in self.shared:
+                if self._from_tip(n):
+                    src.append(("tip", col[TIP_DISTANCE], float(pb.trial.beam.length)))
+                elif n in self.shared:
                     src.append(("col", col[n]))
                 elif n in self.pooled:
                     src.append(("pool", col[f"{n}_median"], col[f"{n}_spread"],
@@ -205,7 +239,19 @@ class JointProblem:
         self._offset = base.index("offset") if "offset" in base else None
         self._rho = base.index("rho") if "rho" in base else None
 
+    def _from_tip(self, name: str) -> bool:
+        """Whether ``name`` (a trial's column) comes from the shared :data:`TIP_DISTANCE`."""
+        return name == "added_mass_position" and TIP_DISTANCE in self.shared
+
     def _check_names(self, base: Sequence[str], marg: Sequence[str]) -> None:
+        if TIP_DISTANCE in self.shared:
+            if "added_mass_position" not in base:
+                raise JointError(f"{TIP_DISTANCE} needs a model with added_mass; model "
+                                 f"{self.model.name!r} has none")
+            if "added_mass_position" in (*self.shared, *self.pooled):
+                raise JointError(f"share either added_mass_position (from the clamp) or "
+                                 f"{TIP_DISTANCE} (from the tip), not both; pool neither")
+            base = [*base, TIP_DISTANCE]
         both = sorted(set(self.shared) & set(self.pooled))
         if both:
             raise JointError(f"{both} are both shared and pooled; name each in one list only")
@@ -281,6 +327,8 @@ class JointProblem:
         for j, s in enumerate(self._src[i]):
             if s[0] == "col":
                 out[:, j] = X[:, s[1]]
+            elif s[0] == "tip":
+                out[:, j] = s[2] - X[:, s[1]]
             elif s[0] == "pool":
                 with np.errstate(over="ignore"):  # inf: an invalid set, masked by the caller
                     out[:, j] = X[:, s[1]] * np.exp(X[:, s[2]] * X[:, s[3]])
@@ -305,6 +353,12 @@ class JointProblem:
         base = self.problems[0].names
         x = np.full(self.ndim, np.nan)
         for n in self.shared:
+            if n == TIP_DISTANCE:
+                j = base.index("added_mass_position")
+                x[self.names.index(n)] = np.median([
+                    float(pb.trial.beam.length) - X[j]
+                    for pb, X in zip(self.problems, Xs, strict=True)])
+                continue
             x[self.names.index(n)] = np.median([X[base.index(n)] for X in Xs])
         for n in self.pooled:
             logs = np.log([X[base.index(n)] for X in Xs])

@@ -34,7 +34,7 @@ from bayesbeam.inference.fit import (
     local_map,
     walker_scale,
 )
-from bayesbeam.inference.joint import JointProblem, PoolCoordinates
+from bayesbeam.inference.joint import TIP_DISTANCE, JointProblem, PoolCoordinates
 from bayesbeam.inference.mesh import converge_mesh
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
@@ -102,10 +102,12 @@ class JointFit:
         """
         d = self.result.to_json_dict()
         pb = self.problem
-        # Each trial's pooled values and marginalised parameters, from its completed draws.
+        # Each trial's pooled values and marginalised parameters, from its completed draws
+        # (and its position from the clamp where the tip distance is shared).
+        mapped = ("added_mass_position",) if TIP_DISTANCE in pb.shared else ()
         for lb, view in zip(self.labels, self.trials, strict=True):
             post, units = view.summary(), view.units()
-            for n in (*pb.pooled, *pb.marginalised):
+            for n in (*pb.pooled, *pb.marginalised, *mapped):
                 d["posterior"][f"{n}[{lb}]"] = post[n]
                 d["units"][f"{n}[{lb}]"] = units[n]
         d["joint"] = {"labels": list(self.labels), "shared": list(pb.shared),

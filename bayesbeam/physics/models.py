@@ -63,6 +63,8 @@ PARAMETER_UNITS: dict[str, tuple[str, str]] = {
     "tip_mass": ("kg", "concentrated tip mass added to the beam's own"),
     "added_mass": ("kg", "concentrated mass at added_mass_position"),
     "added_mass_position": ("m", "distance of added_mass from the clamp, in [0, L]"),
+    "added_mass_tip_distance": ("m", "distance of added_mass from the free end (a joint "
+                                     "fit's shared value over trials of different length)"),
     "root_spring": ("N m/rad", "rotational clamp stiffness k_theta"),
     "stiffness_gradient": ("1", "EI(x) factor 1 + g (x/L - 1/2)"),
     "drag": ("kg/m^2", "quadratic air drag per unit length (force -c_q |w_t| w_t)"),

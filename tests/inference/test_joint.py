@@ -62,6 +62,68 @@ def test_prior_overrides_apply_to_every_trial(trials):
         JointProblem(trials, "viscous", shared=("E",), n_elements=NE, priors={"c_d": narrow})
 
 
+def test_added_mass_shared_by_its_distance_from_the_tip(trials):
+    # t0 and t2 are 0.3048 m long, t1 0.28 m: one distance from the free end d puts the
+    # mass at L_i - d from each clamp.
+    from bayesbeam.inference.joint import TIP_DISTANCE
+
+    jp = JointProblem(trials, "viscous+added_mass", n_elements=NE,
+                      shared=("E", "added_mass", TIP_DISTANCE))
+    assert TIP_DISTANCE in jp.names
+    assert not any(n.startswith("added_mass_position") for n in jp.names)
+    # Uniform(0, L_i) on each position: d in [0, min L_i].
+    assert (jp.priors[TIP_DISTANCE].lo, jp.priors[TIP_DISTANCE].hi) == (0.0, 0.28)
+    x = np.zeros((1, jp.ndim))
+    x[0, jp.names.index(TIP_DISTANCE)] = 0.06
+    for i, length in enumerate((0.3048, 0.28, 0.3048)):
+        col = jp.problems[i].names.index("added_mass_position")
+        assert jp.trial_theta(x, i)[0, col] == pytest.approx(length - 0.06, abs=1e-15)
+    per = []
+    for pb in jp.problems:
+        v = np.full(pb.ndim, 0.5)
+        v[pb.names.index("added_mass_position")] = float(pb.trial.beam.length) - 0.05
+        per.append(v)
+    assert jp.joint_theta(per)[jp.names.index(TIP_DISTANCE)] == pytest.approx(0.05)
+    # The joint likelihood is the sum of the single problems' at positions L_i - d
+    # (marginalise=False: every column sampled, each Problem evaluated on its own).
+    jq = JointProblem(trials, "viscous+added_mass", n_elements=NE, marginalise=False,
+                      shared=("E", "added_mass", TIP_DISTANCE))
+    rng = np.random.default_rng(1)
+    X = np.empty((4, jq.ndim))
+    for j, n in enumerate(jq.names):
+        X[:, j] = {"E": E_TRUE, "added_mass": 2e-3, TIP_DISTANCE: 0.06}.get(
+            n.split("[")[0], np.nan)
+    for i, (g, w) in enumerate([(0.2, 0.005), (0.25, 0.006), (0.18, 0.004)]):
+        for n, v in (("gamma", g), ("w0", w), ("sigma", 1e-5)):
+            X[:, jq.names.index(f"{n}[t{i}]")] = v
+    X[:, jq.names.index(TIP_DISTANCE)] = rng.uniform(0.02, 0.2, 4)
+    U = jq.priors.to_u(X)
+    X = jq.theta(U)  # the values the joint problem sees (the u round trip moves an ulp)
+    total = np.zeros(4)
+    for i, pb in enumerate(jq.problems):
+        own = np.array([[{"E": E_TRUE, "added_mass": 2e-3}.get(n, np.nan) for n in pb.names]
+                        for _ in range(4)])
+        for n in ("gamma", "w0", "sigma"):
+            own[:, pb.names.index(n)] = X[:, jq.names.index(f"{n}[t{i}]")]
+        own[:, pb.names.index("added_mass_position")] = (
+            float(pb.trial.beam.length) - X[:, jq.names.index(TIP_DISTANCE)])
+        total += pb.log_likelihood_theta(own)
+    # Tolerance: an added mass couples the modes, so the band reduction iterates to 1e-12
+    # relative (sensor.TOLERANCE) and the two paths' signals agree to that; with these
+    # residuals far above the noise, |Δll| / |ll| ~ 2e-12 |y| / |r| stays below 1e-10. A
+    # wrong position map (d for L - d) moves the sum by orders of magnitude more.
+    np.testing.assert_allclose(jq.log_likelihood(U), total, rtol=1e-9)
+    with pytest.raises(JointError, match="not both"):
+        JointProblem(trials, "viscous+added_mass", n_elements=NE,
+                     shared=("added_mass_position", TIP_DISTANCE))
+    with pytest.raises(JointError, match="needs a model with added_mass"):
+        JointProblem(trials, "viscous", n_elements=NE, shared=(TIP_DISTANCE,))
+    with pytest.raises(JointError, match="no common distance"):
+        JointProblem(trials, "viscous+added_mass", n_elements=NE, shared=(TIP_DISTANCE,),
+                     priors={"added_mass_position": {"dist": "uniform", "lo": 0.0,
+                                                     "hi": 0.01}})
+
+
 def test_labels_unique():
     class T:
         def __init__(self, name):

@@ -128,3 +128,4 @@ def test_sharing_comparison(factors, best):
                         seed=4, **FAST)
     assert cmp.decided, cmp.table()
     assert best in cmp.best, cmp.table()
+
