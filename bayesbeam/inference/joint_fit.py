@@ -205,11 +205,12 @@ class JointFit:
 class _Coordinates:
     """The sampler's coordinates of a joint fit.
 
-    Each trial's own damping laws as log total first-mode damping and log ratios
-    (:class:`~bayesbeam.inference.fit.SamplerCoordinates`, unit Jacobian; for laws that
-    are per trial), and the pooled parameters centred
-    (:class:`~bayesbeam.inference.joint.PoolCoordinates`). The maps act on disjoint
-    columns.
+    First the pooled parameters centred (:class:`~bayesbeam.inference.joint.PoolCoordinates`:
+    each ``NAME_z[TRIAL]`` column then holds ``log x_i``), then each trial's damping laws,
+    per trial or pooled alike, as log total first-mode damping and log ratios
+    (:class:`~bayesbeam.inference.fit.SamplerCoordinates` on those ``log x`` columns, unit
+    Jacobian): with one mode in band the data fix each trial's total damping and leave
+    the split between laws loose, a ridge these coordinates straighten.
     """
 
     def __init__(self, jp: JointProblem) -> None:
@@ -217,7 +218,8 @@ class _Coordinates:
         self.laws = []
         for label, pb in zip(jp.labels, jp.problems, strict=True):
             sc = SamplerCoordinates(pb)
-            names = [f"{pb.names[j]}[{label}]" for j in sc.group]
+            names = [f"{pb.names[j]}_z[{label}]" if pb.names[j] in jp.pooled
+                     else f"{pb.names[j]}[{label}]" for j in sc.group]
             if not sc.identity and all(n in jp.names for n in names):
                 self.laws.append(SamplerCoordinates.on_columns(
                     [jp.names.index(n) for n in names], sc.c))
@@ -230,11 +232,11 @@ class _Coordinates:
     def describe(self) -> str:
         """One line for the settings record."""
         parts = []
+        if not self.pool.identity:
+            parts.append("each pooled parameter's z as centred log values")
         if self.laws:
             parts.append(f"{len(self.laws)} trial(s)' damping laws as log total first-mode "
                          "damping and log ratios")
-        if not self.pool.identity:
-            parts.append("each pooled parameter's z as centred log values")
         return "u" if not parts else "u with " + "; ".join(parts)
 
     def to_v(self, U: np.ndarray) -> np.ndarray:
@@ -252,8 +254,11 @@ class _Coordinates:
         return self.pool.to_u(U)
 
     def log_jacobian(self, V: np.ndarray) -> np.ndarray:
-        """``log |∂u/∂v|`` (the law maps have unit Jacobian)."""
-        return self.pool.log_jacobian(V)
+        """``log |∂u/∂v|``: the pool map's, at its own coordinates (the law maps' is 1)."""
+        W = np.array(V, dtype=float)
+        for m in reversed(self.laws):
+            W = m.to_u(W)
+        return self.pool.log_jacobian(W)
 
 
 def _view(problem: Any, samples_u: np.ndarray, log_prob: np.ndarray, joint: FitResult,

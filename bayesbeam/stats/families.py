@@ -523,7 +523,8 @@ class Normal(Prior):
 
     def log_pdf_u(self, u: Any) -> np.ndarray:  # noqa: D102
         z = (np.asarray(u, dtype=float) - self.mu) / self.sd
-        return -0.5 * z * z - math.log(self.sd) - _LOG_SQRT_2PI
+        with np.errstate(over="ignore"):  # |z| > 1e154: density 0, log -inf (exact)
+            return -0.5 * z * z - math.log(self.sd) - _LOG_SQRT_2PI
 
     def ppf_u(self, q: Any) -> np.ndarray:  # noqa: D102
         return self.mu + self.sd * special.ndtri(np.asarray(q, dtype=float))

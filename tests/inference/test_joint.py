@@ -264,16 +264,23 @@ def test_no_trials_is_an_error():
 
 
 def test_sampler_coordinates_of_a_joint_fit_round_trip_and_jacobian(trials):
-    """Per-trial damping-law coordinates and centred pooled values: bijection, Jacobian."""
+    """Centred pooled values, then every trial's damping-law coordinates (on per-trial
+    and pooled laws alike): bijection, Jacobian by finite differences."""
     from bayesbeam.inference.joint_fit import _Coordinates
 
     jp = JointProblem(trials, "viscous+kv", shared=("E",), pooled=("c_d",), n_elements=NE)
     co = _Coordinates(jp)
-    assert co.laws == []  # c_d is pooled: no trial has two laws of its own
     jq = JointProblem(trials, "viscous+kv", shared=("E",), n_elements=NE)
     cq = _Coordinates(jq)
-    assert len(cq.laws) == len(trials)
-    for c, p in ((co, jp), (cq, jq)):
+    jr = JointProblem(trials, "viscous+kv", shared=("E",), pooled=("gamma", "c_d"),
+                      n_elements=NE)
+    cr = _Coordinates(jr)
+    for c in (co, cq, cr):
+        assert len(c.laws) == len(trials)
+    # Pooled laws: the maps act on the z columns (which hold log x after the pool map).
+    assert list(cr.laws[0].group) == [jr.names.index("gamma_z[t0]"),
+                                      jr.names.index("c_d_z[t0]")]
+    for c, p in ((co, jp), (cq, jq), (cr, jr)):
         U = p.priors.sample_u(np.random.default_rng(2), 4)
         np.testing.assert_allclose(c.to_u(c.to_v(U)), U, rtol=1e-10, atol=1e-10)
         v = c.to_v(U[:1])[0]

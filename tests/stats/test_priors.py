@@ -224,3 +224,11 @@ def test_priorset_overrides_and_errors(tmp_path):
     with pytest.raises(PriorError, match="unknown"):
         PS.scaled(2.0, ["nope"])
     assert PriorSet.from_dict(json.loads(json.dumps(PS.to_dict()))) == PS
+
+
+def test_normal_density_far_out_is_zero_without_a_warning():
+    # A pooled parameter's z = (log x - log m) / s at a spread s -> 0 (the sampler's
+    # centred coordinates) reaches 1e200: the density is 0 (log -inf), not an overflow
+    # warning (which the strict test configuration would turn into an error).
+    np.testing.assert_array_equal(Normal(0.0, 1.0).log_pdf_u(np.array([1e200, -1e200])),
+                                  [-np.inf, -np.inf])
