@@ -275,7 +275,8 @@ def main() -> None:
     def say(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    settings = {"target_ess": args.target_ess, "max_steps": args.max_steps, "progress": False}
+    # Progress lines with time estimates on stderr (these runs take minutes to hours).
+    settings = {"target_ess": args.target_ess, "max_steps": args.max_steps, "progress": True}
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings():
         warnings.simplefilter("default", NotConvergedWarning)  # report, do not stop
