@@ -254,11 +254,12 @@ class _Coordinates:
         return self.pool.to_u(U)
 
     def log_jacobian(self, V: np.ndarray) -> np.ndarray:
-        """``log |∂u/∂v|``: the pool map's, at its own coordinates (the law maps' is 1)."""
-        W = np.array(V, dtype=float)
-        for m in reversed(self.laws):
-            W = m.to_u(W)
-        return self.pool.log_jacobian(W)
+        """``log |∂u/∂v|``: the pool map's (the law maps' is 1).
+
+        The pool map's depends on the spread columns only, which no law map moves, so it
+        reads them in ``V`` directly (no inverse law maps on every step).
+        """
+        return self.pool.log_jacobian(V)
 
 
 def _view(problem: Any, samples_u: np.ndarray, log_prob: np.ndarray, joint: FitResult,
