@@ -16,9 +16,12 @@ Timings are medians over repeats; ratios are against (ii) and (iii) run in the s
       ``viscous+sh`` at 1,280 and 10,240 samples, the time per set of the path the forward
       model chooses (closed-form modal sum for the classically damped models, full
       propagation otherwise), the ratio of today's full propagation (``path='full'``, same
-      sets, same process) to it, and its ratio to a bare numpy loop doing only the
-      ``m × T`` complex rotations of the modes in band (the practical limit of any
-      per-sample method).
+      sets, same process) to it, and its ratio to a bare loop doing only the ``m × T``
+      complex rotations of the modes in band (the practical limit of any per-sample
+      method): compiled (:func:`bayesbeam.physics.modal_kernel._rotations_kernel_py`, the
+      closed form's kernel layout without its coefficients, lifetimes and anchors) when
+      numba is installed, else a numpy loop; the table says which, and which backend the
+      closed form used.
 """
 
 from __future__ import annotations
@@ -33,7 +36,9 @@ from scipy.integrate import solve_ivp
 
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import Forward
-from bayesbeam.physics.propagate import single_blas_thread
+from bayesbeam.physics.modal_closed import compiled_kernel
+from bayesbeam.physics.modal_kernel import _rotations_kernel_py
+from bayesbeam.physics.propagate import _pick_backend, single_blas_thread
 
 __all__ = ["bench_beam", "bench_params", "format_bench", "run_bench"]
 
@@ -96,12 +101,28 @@ def _bare_rotations(rot: np.ndarray, n: int) -> np.ndarray:
     """Rotate every mode ``n`` times, ``z ← z·r``, and nothing else (the practical limit).
 
     ``rot`` (B, m) holds each mode's one-step factor; a numpy loop over the samples,
-    vectorised over sets and modes.
+    vectorised over sets and modes (the fallback of :func:`_bare_loop` without numba).
     """
     z = np.ones_like(rot)
     for _ in range(n):
         np.multiply(z, rot, out=z)
     return z
+
+
+def _bare_loop() -> tuple[str, Callable[[np.ndarray, int], object]]:
+    """Return the bare loop of the path table: ('compiled' or 'numpy', loop(rot, n)).
+
+    The compiled one (with numba) sums ``Re Σ_j r_j^k`` over the samples in the closed
+    form's kernel layout; the numpy one (:func:`_bare_rotations`) only rotates.
+    """
+    kernel = compiled_kernel(_rotations_kernel_py)
+    if kernel is None:
+        return "numpy", _bare_rotations
+
+    def run(rot: np.ndarray, n: int) -> np.ndarray:
+        return kernel(np.ascontiguousarray(rot.real), np.ascontiguousarray(rot.imag), n)
+
+    return "compiled", run
 
 
 def _modes_in_band(fwd: Forward, theta: np.ndarray) -> np.ndarray:
@@ -118,6 +139,8 @@ def _path_table(
 ) -> list[dict[str, float | int | str]]:
     """Rows of the path table (iv); see the module docstring."""
     rows: list[dict[str, float | int | str]] = []
+    bare_kind, bare_loop = _bare_loop()
+    backend = _pick_backend("auto")  # what the closed form's uniform sum uses
     for n in samples:
         times = np.arange(n) * DT
         for model in PATH_MODELS:
@@ -131,14 +154,16 @@ def _path_table(
             per_set = _median_time(lambda f=auto, th=theta: f.simulate(th), repeats) / n_sets
             full_s = _median_time(lambda f=full, th=theta: f.simulate(th), repeats) / n_sets
             rot = _modes_in_band(auto, theta)
-            bare = _median_time(lambda r=rot, k=n: _bare_rotations(r, k), repeats) / n_sets
+            bare_loop(rot, n)  # warm-up: compiles or loads the kernel on the first call
+            bare = _median_time(lambda r=rot, k=n: bare_loop(r, k), repeats) / n_sets
             diff = np.max(np.abs(y_auto.y - y_full.y)) / np.max(np.abs(y_full.y))
             rows.append({
                 "model": model, "n_samples": n, "path": str(auto.last_path),
                 "per_set_s": per_set, "full_per_set_s": full_s,
                 "speedup_vs_full": full_s / per_set, "bare_per_set_s": bare,
                 "ratio_to_bare": per_set / bare, "modes_in_band": int(rot.shape[1]),
-                "max_rel_diff_vs_full": float(diff),
+                "max_rel_diff_vs_full": float(diff), "bare_loop": bare_kind,
+                "closed_form_backend": backend,
             })
     return rows
 
@@ -236,7 +261,8 @@ def run_bench(
         with ``model``, ``n_samples``, ``path`` (the path the forward model took),
         ``per_set_s``, ``full_per_set_s``, ``speedup_vs_full`` (full / chosen),
         ``bare_per_set_s``, ``ratio_to_bare`` (chosen / bare rotations),
-        ``modes_in_band`` and ``max_rel_diff_vs_full``.
+        ``modes_in_band``, ``max_rel_diff_vs_full``, ``bare_loop`` ('compiled' or
+        'numpy') and ``closed_form_backend`` ('numba' or 'numpy').
     """
     for label, v in (("n_sets", n_sets), ("n_samples", n_samples), ("repeats", repeats)):
         if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
@@ -311,7 +337,8 @@ def format_bench(res: dict[str, Any]) -> str:
         lines += [
             "",
             f"forward-model paths ({res['n_sets']} sets; medians; full = today's full "
-            "propagation, bare = numpy loop of only the m x T rotations)",
+            f"propagation, bare = {paths[0]['bare_loop']} loop of only the m x T rotations; "
+            f"closed form by the {paths[0]['closed_form_backend']} kernel)",
             f"  {'model':<11} {'samples':>7} {'path':<16} {'µs/set':>9} {'full µs/set':>11} "
             f"{'full/path':>9} {'path/bare':>9} {'m':>3} {'max rel diff':>12}",
         ]

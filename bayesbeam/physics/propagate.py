@@ -33,9 +33,10 @@ The response functions can instead report bad parameter sets in a ``valid`` mask
 ignores the mask fails loudly instead of silently. Every set's result is independent of the
 other sets in its batch (all choices are made per set).
 
-Optional acceleration: with numba installed, ``response_uniform(..., backend="numba")``
-runs the same algorithm compiled (a serial kernel per set, the batch split over
-``threads``). The pure-numpy path is the reference and is always available.
+Compiled path: numba (a dependency of the package) runs the same algorithm compiled with
+``response_uniform(..., backend="numba")`` (a serial kernel per set, the batch split over
+``threads``). The pure-numpy path is the reference, the default here, and what runs on a
+platform where numba does not import.
 """
 
 from __future__ import annotations
@@ -616,7 +617,7 @@ def _numba_kernel():
 
 
 def numba_available() -> bool:
-    """Whether the optional numba backend can be used.
+    """Whether numba imports here (a dependency; a platform without it runs numpy).
 
     Returns
     -------

@@ -7,8 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from bayesbeam.jobs import bench
 from bayesbeam.jobs.bench import bench_beam, bench_params, format_bench, run_bench
 from bayesbeam.physics.forward import Forward
+from bayesbeam.physics.propagate import numba_available
 
 KEYS = ("per_set_s", "expm_per_set_s", "rk45_per_set_s", "rk45_elements", "max_rel_diff")
 
@@ -62,8 +64,26 @@ def test_path_table_reports_each_model_and_the_path_taken():
         # The closed form and the full propagation are both exact to rounding (issue 13:
         # 1e-9 relative; tests/physics/test_forward_classical.py).
         assert row["max_rel_diff_vs_full"] <= 1e-9
+        # The bare loop is compiled where numba is (a dependency), like the closed form.
+        assert row["bare_loop"] == ("compiled" if numba_available() else "numpy")
+        assert row["closed_form_backend"] == ("numba" if numba_available() else "numpy")
     text = format_bench(res)
     assert "closed-form" in text and "viscous+kv" in text and "path/bare" in text
+    assert f"bare = {rows[0]['bare_loop']} loop" in text
+
+
+def test_bare_loops_agree_and_numpy_one_is_the_fallback(monkeypatch):
+    # The compiled bare loop sums Re r^k over the modes; the numpy one only rotates: the
+    # sum of its final rotations is the compiled loop's last sample (rounding: a few
+    # hundred products of unit numbers).
+    rot = np.exp(1j * np.random.default_rng(1).uniform(0, np.pi, (3, 5)))
+    kind, loop = bench._bare_loop()
+    if kind == "compiled":
+        y = loop(rot, 301)
+        z = bench._bare_rotations(rot, 300)
+        assert np.abs(y[:, -1] - z.real.sum(axis=1)).max() <= 1e-12
+    monkeypatch.setattr(bench, "compiled_kernel", lambda kernel: None)
+    assert bench._bare_loop() == ("numpy", bench._bare_rotations)
 
 
 def test_path_table_can_be_left_out_and_rejects_bad_lengths():
