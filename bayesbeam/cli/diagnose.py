@@ -89,9 +89,14 @@ def register(subparsers: Any) -> None:
     sp.add_argument("--target-ess", type=float, default=DIAGNOSIS_DEFAULTS.target_ess,
                     help=f"bulk ESS target per sampled model "
                          f"(default {DIAGNOSIS_DEFAULTS.target_ess:g})")
+    # One worker per core by default: a round's screens and samplings are independent
+    # and give bit-for-bit the serial numbers, and a whole record's diagnosis takes
+    # tens of minutes in one process.
     opts.add_executor_options(
-        sp, jobs_help="worker processes for each round's candidate searches and sampling "
-                      "runs (default 1: in this process; 0: one per CPU core)")
+        sp, default_jobs=0,
+        jobs_help="worker processes for each round's candidate searches and sampling "
+                  "runs (default 0: one per CPU core; 1: in this process; the numbers "
+                  "are the same)")
     opts.add_json_option(sp, help="print the record as JSON")
     sp.set_defaults(func=run)
 

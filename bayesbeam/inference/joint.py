@@ -277,6 +277,16 @@ class JointProblem:
                     f"e.g. LogUniform), got {pri[0].to_dict()}; pool a damping, mass or "
                     "spring parameter"
                 )
+        if marg and self.model.nonlinear:
+            # Drag, friction and an amplitude-dependent frequency make the signal depend
+            # on the amplitudes nonlinearly (physics.md §3): the Gaussian integral over
+            # them is no longer exact, and a unit-amplitude basis would be nonsense.
+            raise JointError(
+                f"model {self.model.name!r} has amplitude-dependent parts "
+                f"{list(self.model.nonlinear)}: its signal is not linear in the modal "
+                "amplitudes, so they cannot be integrated out in closed form; fit with "
+                "marginalise=False (--no-marginalise)"
+            )
         if marg:
             for pb in self.problems:
                 if not isinstance(pb.priors["sigma"], LogUniform):

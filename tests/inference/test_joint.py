@@ -285,3 +285,14 @@ def test_sampler_coordinates_of_a_joint_fit_round_trip_and_jacobian(trials):
         np.testing.assert_allclose(c.to_u(c.to_v(U)), U, rtol=1e-10, atol=1e-10)
         v = c.to_v(U[:1])[0]
         assert c.log_jacobian(v) == pytest.approx(_fd_log_det(c.to_u, v), abs=1e-5)
+
+
+@pytest.mark.parametrize("model", ["viscous+drag", "viscous+friction"])
+def test_amplitude_dependent_model_is_not_marginalised(trials, model):
+    # The closed-form marginal integrates a signal linear in the amplitudes; drag and
+    # friction are not. Refused by default, and the sampled form (the sum of the single
+    # problems) stays available.
+    with pytest.raises(JointError, match="--no-marginalise"):
+        JointProblem(trials, model, shared=("E",), n_elements=NE)
+    jq = JointProblem(trials, model, shared=("E",), marginalise=False, n_elements=NE)
+    assert jq.marginalised == ()
