@@ -110,7 +110,7 @@ class _Engine:
 
         pb = st.problem
         X = fitmod.clip_to_prior(pb, np.atleast_2d(starts))
-        X = fitmod.scan_E(pb, fitmod.profile_linear(pb, X))
+        X = fitmod.scan_E(pb, X)  # profiles the amplitudes on every row of its E grid
         U = pb.priors.to_u(X)
         if st.u is not None:
             U = np.vstack([st.u[None], U])
@@ -167,12 +167,8 @@ class _Engine:
         rows = []
         if warm:
             rows.append([warm.get(n, neutral[n]) for n in names])
-        rows.extend(self._physics_starts(pb, warm or {}, neutral))
+        rows.extend(physics_starts(pb, self.features(), warm or {}, neutral))
         return np.array(rows, dtype=float)
-
-    def _physics_starts(self, pb: Any, warm: Mapping[str, float],
-                        neutral: Mapping[str, float]) -> list[list[float]]:
-        return physics_starts(pb, self.features(), warm, neutral)
 
     def config(self) -> dict[str, Any]:
         """Return what rebuilds this engine's problems elsewhere (plain, picklable data)."""
