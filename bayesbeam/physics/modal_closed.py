@@ -242,7 +242,7 @@ def compiled_kernel(kernel: Callable) -> Callable | None:
         return None
     import numba
 
-    return numba.njit(nogil=True, cache=True, fastmath={"contract"})(kernel)
+    return numba.njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")(kernel)
 
 
 #: Sets per block of :func:`term_sum_uniform`: keeps a block's powers and output in cache
