@@ -46,7 +46,8 @@ Procedure of one round (current model M)
    (2 nats, 1 nat below the significance threshold for safety) cannot be
    significant and is not sampled. The MAPs of the passing candidates also restart
    the optimisation of M (a better optimum of M found this way replaces its MAP, so
-   that a poor local optimum of M cannot make every extension look good).
+   that a poor local optimum of M cannot make every extension look good; M is sampled
+   again only if its chains never came near the better optimum, :func:`_chains_reached`).
 2. **Confirm** (expensive): emcee from the MAP (walkers in a ball shaped by the
    Laplace covariance, differential-evolution moves), then bridge-sampling evidence
    with its Monte-Carlo error and PSIS-LOO (:func:`bayesbeam.comparison.scoring.evaluate`) for M
@@ -409,6 +410,30 @@ def diagnose(
     )
 
 
+def _chains_reached(st: _State) -> bool:
+    """Whether a sampled model's chains already visited its (newly improved) MAP.
+
+    A better MAP found from a candidate's optimum only invalidates the model's sampled
+    score (evidence, LOO, signatures) when the chains never came near it. Near a mode in
+    d dimensions a posterior draw lies ``χ²_d / 2`` below it (Laplace), so a chain that
+    sampled the mode's basin has drawn, with probability 1 - 0.99^ESS (95 % at the
+    diagnosis's ESS of 300), at least one point within the 1 % quantile
+    ``χ²_d(0.01) / 2`` of it (1.8 nats for d = 12). If the highest log posterior visited
+    is that close to the new MAP's, the sample already holds the mode and sampling again
+    would repeat it (measured on Al 50 cm #0: a MAP 34.5 nats better, re-sampled to the
+    same log Z within 0.01 nat, 98 s); otherwise the model is sampled again.
+    """
+    from scipy.stats import chi2
+
+    if st.score is None:
+        return False
+    lp = np.asarray(st.score.result.chain.log_prob, dtype=float)
+    if not lp.size or not np.isfinite(lp).any():
+        return False
+    gap = 0.5 * float(chi2.ppf(0.01, st.problem.ndim))
+    return bool(np.nanmax(lp) >= st.lp - gap)
+
+
 def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
            confirm_top: int, log: Callable[[str], None], executor: Any = None,
            show: bool = False) -> Round:
@@ -455,7 +480,8 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
         eng.optimise(cur, np.array(warm))
         if cur.ll > before + 1e-6:
             log(f"  current model improved by {cur.ll - before:.2f} from candidate MAPs")
-            cur.score = cur.sig = None
+            if not _chains_reached(cur):
+                cur.score = cur.sig = None
             for s in scores.values():
                 if math.isfinite(s["gain"]):
                     s["gain"] -= cur.ll - before

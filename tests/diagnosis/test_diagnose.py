@@ -336,6 +336,30 @@ def test_drag_and_friction_signatures_point_opposite_ways():
     assert signature_support("friction", sig)[0] is None
 
 
+def test_a_better_map_the_chains_already_visited_keeps_the_score():
+    from types import SimpleNamespace
+
+    from bayesbeam.diagnosis.diagnose import _chains_reached
+
+    def state(max_lp, new_lp, d=12):
+        chain = SimpleNamespace(log_prob=np.array([[max_lp - 7.0, max_lp], [max_lp - 3.0, -1e9]]))
+        score = SimpleNamespace(result=SimpleNamespace(chain=chain))
+        return SimpleNamespace(score=score, lp=new_lp, problem=SimpleNamespace(ndim=d))
+
+    # The gap is the 1 % quantile of χ²_d / 2, checked here by brute force: 1 % of
+    # Gaussian draws in 12 dimensions lie within it of the mode (binomial sd 0.02 %).
+    rng = np.random.default_rng(4)
+    half_chi2 = 0.5 * np.sum(rng.standard_normal((400_000, 12)) ** 2, axis=1)
+    gap = float(np.quantile(half_chi2, 0.01))
+    assert abs(np.mean(half_chi2 <= 1.79) - 0.01) < 0.001
+    assert _chains_reached(state(100.0, 100.0 + 0.9 * gap))
+    assert not _chains_reached(state(100.0, 100.0 + 1.1 * gap))
+    assert not _chains_reached(state(100.0, 134.5))  # the chains never found the mode
+    assert not _chains_reached(SimpleNamespace(score=None, lp=0.0))
+    # In 2 dimensions a sample comes much closer to its mode: the gap shrinks with d.
+    assert not _chains_reached(state(100.0, 100.5, d=2))
+
+
 def test_softening_signature_and_starts():
     # The data's f1 falls with amplitude beyond the linear model's (signature), and the
     # starts of the extended model put f1_slope at the measured slope.
