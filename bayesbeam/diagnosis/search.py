@@ -5,16 +5,20 @@ per model (problem, MAP, Laplace log evidence, sampled score, residual signature
 
 * **MAP search** (:meth:`_Engine.optimise`): an E scan, L-BFGS-B restarts with a
   finite-difference gradient (:func:`~bayesbeam.stats.numdiff.fd_gradient`, one-sided on
-  a prior bound), then damped Newton steps with a finite-difference Hessian
-  (:func:`_newton_polish`), since L-BFGS-B alone stops several nats short on these
-  narrow curved ridges;
+  a prior bound) in the sampler's coordinates
+  (:class:`~bayesbeam.inference.fit.SamplerCoordinates`), each pass scaled by the
+  coordinates' conditional sd at its start (:func:`_curvature_scales`), then damped
+  Newton steps with a finite-difference Hessian (:func:`_newton_polish`), since
+  L-BFGS-B alone stops short on these narrow curved ridges; after sampling, a chain
+  point above the MAP replaces it (:meth:`_Engine._scored`);
 * **start points** (:meth:`_Engine.starts`): the current MAP with the new parameters
   at neutral values (:func:`~bayesbeam.inference.starts.neutral_value`), and
   physics-based starts from the data's modal estimates
   (:func:`~bayesbeam.inference.starts.physics_starts`: a structural parameter solved for
   the measured f2/f1, a point mass along the f2/f1 curve, E for f1, damping
   coefficients for the measured decay rates, drag or friction for the measured ζ1);
-* **confirmation** (:meth:`_Engine.confirm`): emcee from the MAP (:func:`_sample`)
+* **confirmation** (:meth:`_Engine.confirm`): emcee from the MAP in the sampler's
+  coordinates (:func:`_sample`)
   then bridge-sampling evidence and PSIS-LOO (:func:`bayesbeam.comparison.scoring.evaluate`).
 
 The procedure, thresholds and records are in :mod:`bayesbeam.diagnosis.diagnose`, which
@@ -114,32 +118,53 @@ class _Engine:
         U = pb.priors.to_u(X)
         if st.u is not None:
             U = np.vstack([st.u[None], U])
-        bounds = [(lo + 1e-9, hi - 1e-9) if np.isfinite(lo) and np.isfinite(hi) else (None, None)
-                  for lo, hi in pb.priors.bounds_u]
+        bounds = _bounds(pb)
+        # L-BFGS-B runs in the sampler's coordinates (fit.SamplerCoordinates: log total
+        # first-mode damping and log ratios of the laws): the viscous/KV trade-off that a
+        # record fixes only in total is a curved valley in u, along which L-BFGS-B crawls
+        # (on Al 50 cm #0 it stopped 190-410 nats short), and a straight one in v. The
+        # map has unit Jacobian; the grouped coordinates are unbounded there (the
+        # density is -inf outside the prior, which the line search backs off from).
+        coords = fitmod.SamplerCoordinates(pb)
+        vbounds = [(None, None) if j in set(coords.group.tolist()) else b
+                   for j, b in enumerate(bounds)]
 
-        def negf(u: np.ndarray) -> tuple[float, np.ndarray]:
-            # One-sided on a prior bound (e.g. rho = 0): a central difference would be
-            # infinite there and the optimiser would never leave the bound.
-            v, g = fd_gradient(pb.log_prob, u, 1e-6, one_sided=True)
-            if not np.isfinite(v):
-                return 1e300, np.zeros_like(u)
-            return -v, -g
+        def f_v(V: np.ndarray) -> np.ndarray:
+            return pb.log_prob(coords.to_u(V))
 
         for u0 in U:
-            u, v = u0, -math.inf
+            x, v = coords.to_v(u0), -math.inf
             for _ in range(4):
                 # Restarting L-BFGS-B resets its curvature memory; on these narrow,
-                # curved ridges a restart often gains several nats (up to 4 passes).
-                res = sopt.minimize(negf, u, jac=True, method="L-BFGS-B", bounds=bounds,
-                                    options={"maxiter": 300})
-                v_new = float(pb.log_prob(res.x[None])[0])
+                # curved ridges a restart often gains several nats (up to 4 passes). Each
+                # pass works in units of the coordinates' conditional sd at its start
+                # (curvatures span 1e2-1e13 on a whole record, the modal amplitudes in
+                # m/s² being the stiffest; unscaled, the gradient's step of 1e-6 is many
+                # sd in them and L-BFGS-B stops early).
+                x0, sc = x, _curvature_scales(f_v, x)
+                zb = [(None if b[0] is None else (b[0] - x0[j]) / sc[j],
+                       None if b[1] is None else (b[1] - x0[j]) / sc[j])
+                      for j, b in enumerate(vbounds)]
+
+                def negf(z: np.ndarray, x0=x0, sc=sc) -> tuple[float, np.ndarray]:
+                    # One-sided on a prior bound (e.g. rho = 0): a central difference
+                    # would be infinite there and the optimiser would never leave it.
+                    val, g = fd_gradient(lambda Z: f_v(x0 + Z * sc), z, 1e-6, one_sided=True)
+                    if not np.isfinite(val):
+                        return 1e300, np.zeros_like(z)
+                    return -val, -g
+
+                res = sopt.minimize(negf, np.zeros_like(x0), jac=True, method="L-BFGS-B",
+                                    bounds=zb, options={"maxiter": 300})
+                x_new = x0 + res.x * sc
+                v_new = float(f_v(x_new[None])[0])
                 gain = v_new - v
                 if gain > 0:
-                    u, v = res.x, v_new
+                    x, v = x_new, v_new
                 if not gain > 1e-3:
                     break
             if v > st.lp:
-                st.u, st.lp = np.asarray(u, dtype=float), v
+                st.u, st.lp = np.asarray(coords.to_u(x), dtype=float), v
         if st.u is not None and np.isfinite(st.lp):
             st.u, st.lp = _newton_polish(pb.log_prob, st.u, st.lp, bounds)
         if st.u is None or not np.isfinite(st.lp):
@@ -167,6 +192,14 @@ class _Engine:
         rows = []
         if warm:
             rows.append([warm.get(n, neutral[n]) for n in names])
+        else:
+            # No MAP yet (the baseline): also fit()'s first start, the record's damping
+            # shared evenly among the laws (deterministic). The decay-rate starts alone can
+            # put the baseline on the wrong side of the viscous/KV ridge: on Al 50 cm #0
+            # they stopped 414 nats below the mode this start finds.
+            from bayesbeam.inference.fit import _start_points
+
+            rows.extend(_start_points(pb, np.random.default_rng(self.seed), 1))
         rows.extend(physics_starts(pb, self.features(), warm or {}, neutral))
         return np.array(rows, dtype=float)
 
@@ -258,7 +291,14 @@ class _Engine:
                         problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]))
 
     def _scored(self, st: _State, score: Any, notes: Sequence[str], seconds: float) -> None:
-        """Record a state's score: its notes (sampler's, then the score's), time, log line."""
+        """Record a state's score: its notes (sampler's, then the score's), time, log line.
+
+        The chains are an optimiser too: where they visited a point above the MAP (on
+        whole records the search can stop hundreds of nats short, on a ridge where one
+        damping law trades against another), that point, Newton-polished, becomes the
+        state's MAP, so that the next round's candidates start from it and their gains
+        are measured against it.
+        """
         st.score = score
         self.notes.extend(notes)
         for n in score.notes:
@@ -267,6 +307,17 @@ class _Engine:
         self.log(f"  sampled {st.problem.model.name}: log Z = {score.log_evidence:.2f} ± "
                  f"{score.log_evidence_err:.2f}, elpd = {score.loo.elpd_loo:.1f} "
                  f"({seconds:.0f} s)")
+        chain = score.result.chain
+        lp = np.asarray(chain.flat_log_prob, dtype=float)
+        if lp.size and np.isfinite(lp).any() and np.nanmax(lp) > st.lp + 1e-6:
+            pb = st.problem
+            i = int(np.nanargmax(lp))
+            u, v = np.asarray(chain.flat_samples[i], dtype=float), float(lp[i])
+            u, v = _newton_polish(pb.log_prob, u, v, _bounds(pb))
+            self.log(f"  {pb.model.name}: MAP moved {v - st.lp:.2f} up, to the chains' best "
+                     "point (polished)")
+            st.u, st.lp = u, v
+            st.ll = float(pb.log_likelihood(u[None])[0])
 
     def signatures(self, st: _State) -> Any:
         if st.sig is None:
@@ -344,6 +395,30 @@ def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:
     return score, notes, time.perf_counter() - t0
 
 
+def _curvature_scales(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
+    """Return the conditional sd ``1/sqrt(-∂²f/∂x_j²)`` of each coordinate at ``x``.
+
+    Central second differences in one batched call; 1 where the curvature is not
+    positive.
+    """
+    d = x.size
+    h = 1e-4 * np.maximum(1.0, np.abs(x))
+    X = np.repeat(x[None], 2 * d + 1, axis=0)
+    X[1:d + 1] += np.diag(h)
+    X[d + 1:] -= np.diag(h)
+    with np.errstate(all="ignore"):
+        F = f(X)
+        curv = -(F[1:d + 1] - 2 * F[0] + F[d + 1:]) / h**2
+    ok = np.isfinite(curv) & (curv > 0)
+    return np.where(ok, 1.0 / np.sqrt(np.where(ok, curv, 1.0)), 1.0)
+
+
+def _bounds(pb: Any) -> list[tuple[float | None, float | None]]:
+    """L-BFGS-B bounds in the sampling space: the prior's, 1e-9 inside; None if open."""
+    return [(lo + 1e-9, hi - 1e-9) if np.isfinite(lo) and np.isfinite(hi) else (None, None)
+            for lo, hi in pb.priors.bounds_u]
+
+
 def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,
                    bounds: Sequence[tuple[float | None, float | None]],
                    iters: int = 6) -> tuple[np.ndarray, float]:
@@ -384,7 +459,13 @@ def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: floa
 
 def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any],
             notes: list[str]) -> Any:
-    """Sample with emcee from a ball around the MAP (:func:`~.fit.walker_scale`)."""
+    """Sample with emcee from a ball around the MAP (:func:`~.fit.walker_scale`).
+
+    The ensemble moves in the coordinates of :class:`~.fit.SamplerCoordinates`, as in
+    :func:`~.fit.fit`: the damping laws' log total first-mode damping and log ratios,
+    where the viscous/KV trade-off that a record fixes only in total is a straight
+    valley instead of a curved one (unit Jacobian: the density is unchanged).
+    """
     from bayesbeam.inference import fit as fitmod
     from bayesbeam.inference.results import FitResult, make_provenance
     from bayesbeam.inference.settings import walker_count
@@ -395,10 +476,16 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     nwalkers = walker_count(settings["nwalkers"], ndim)
     u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng,
                       scale=fitmod.walker_scale(pb, u_map))
+    coords = fitmod.SamplerCoordinates(pb)
+
+    def log_prob_v(V: np.ndarray) -> np.ndarray:
+        return pb.log_prob(coords.to_u(V))
+
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
-        chain = run_emcee(pb.log_prob, u0, seed=seed, max_steps=int(settings["max_steps"]),
+        chain = run_emcee(log_prob_v, coords.to_v(u0), seed=seed,
+                          max_steps=int(settings["max_steps"]),
                           min_steps=int(settings["min_steps"]),
                           target_ess=float(settings["target_ess"]), names=pb.names,
                           moves=de_moves(), progress=False,
@@ -409,6 +496,8 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
             notes.append(f"{pb.model.name}: {w.message}")
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if not coords.identity:
+        chain = fitmod.chain_in_u(chain, coords.to_u(chain.samples))
     X = pb.theta(chain.samples.reshape(-1, ndim))
     derived = {k: v.reshape(chain.samples.shape[:2]) for k, v in pb.derived(X).items()}
     return FitResult(

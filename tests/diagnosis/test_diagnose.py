@@ -360,6 +360,57 @@ def test_a_better_map_the_chains_already_visited_keeps_the_score():
     assert not _chains_reached(state(100.0, 100.5, d=2))
 
 
+def test_the_chains_best_point_becomes_the_map():
+    # On whole records the MAP search can stop far short (Al 50 cm #0: 250-760 nats);
+    # when the chains visit a better point, it (polished) becomes the state's MAP, so
+    # that the next round starts from it.
+    from types import SimpleNamespace
+
+    from bayesbeam.diagnosis.search import _Engine
+    from bayesbeam.physics.models import parse_model
+
+    trial, initial = make_trial("viscous+kv", BASE, "displacement", duration=0.25)
+    eng = _Engine(trial, seed=0, n_elements=N_EL, initial=initial, priors=None,
+                  sampler={}, notes=[], log=lambda s: None)
+    st = eng.state(parse_model("viscous+kv"))
+    eng.optimise(st, eng.starts(st, None))
+    pb, u_map, lp_map = st.problem, st.u.copy(), st.lp
+    poor = u_map.copy()
+    poor[pb.names.index("E")] += 1e-3  # a 0.1 % error in E: far down the f1 ridge
+    lp_poor = float(pb.log_prob(poor[None])[0])
+    assert lp_poor < lp_map - 10
+    st.u, st.lp = poor, lp_poor
+    near = u_map.copy()
+    near[pb.names.index("E")] += 1e-6
+    chain = SimpleNamespace(flat_samples=np.array([poor, near]),
+                            flat_log_prob=pb.log_prob(np.array([poor, near])))
+    score = SimpleNamespace(result=SimpleNamespace(chain=chain), notes=(), log_evidence=0.0,
+                            log_evidence_err=0.0, loo=SimpleNamespace(elpd_loo=0.0))
+    eng._scored(st, score, [], 1.0)
+    assert st.lp >= float(chain.flat_log_prob[1]) and st.lp >= lp_map - 1e-3
+    assert st.ll == float(pb.log_likelihood(st.u[None])[0])
+    # A chain that never rose above the MAP leaves it alone.
+    u_before, lp_before = st.u.copy(), st.lp
+    eng._scored(st, score, [], 1.0)
+    assert np.array_equal(st.u, u_before) and st.lp == lp_before
+
+
+def test_curvature_scales_are_the_conditional_sds():
+    # A Gaussian log density with precisions spanning 1e2-1e12 (the range of a whole
+    # record's posterior): the scales are its conditional sds, 1 where it is not concave.
+    from bayesbeam.diagnosis.search import _curvature_scales
+
+    c = np.array([1e2, 1e6, 1e12, -3.0])
+    x0 = np.array([0.3, -2.0, 1e-4, 5.0])
+
+    def f(X):
+        return -0.5 * np.sum(c * (X - x0) ** 2, axis=-1)
+
+    sc = _curvature_scales(f, x0 + np.array([0.01, 0.0, 1e-7, 0.0]))
+    assert np.allclose(sc[:3], 1 / np.sqrt(c[:3]), rtol=1e-6)
+    assert sc[3] == 1.0
+
+
 def test_softening_signature_and_starts():
     # The data's f1 falls with amplitude beyond the linear model's (signature), and the
     # starts of the extended model put f1_slope at the measured slope.
