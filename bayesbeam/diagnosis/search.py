@@ -3,14 +3,11 @@
 :class:`_Engine` fits, caches and scores the models of one trial, one :class:`_State`
 per model (problem, MAP, Laplace log evidence, sampled score, residual signatures):
 
-* **MAP search** (:meth:`_Engine.optimise`): an E scan, L-BFGS-B restarts with a
-  finite-difference gradient (:func:`~bayesbeam.stats.numdiff.fd_gradient`, one-sided on
-  a prior bound) in the sampler's coordinates
-  (:class:`~bayesbeam.inference.fit.SamplerCoordinates`), each pass scaled by the
-  coordinates' conditional sd at its start (:func:`_curvature_scales`), then damped
-  Newton steps with a finite-difference Hessian (:func:`_newton_polish`), since
-  L-BFGS-B alone stops short on these narrow curved ridges; after sampling, a chain
-  point above the MAP replaces it (:meth:`_Engine._scored`);
+* **MAP search** (:meth:`_Engine.optimise`): an E scan, then from each start the
+  search of ``bayesbeam fit`` (:func:`~bayesbeam.inference.optimum.local_map`: scaled
+  L-BFGS-B passes in the sampler's coordinates) and Newton polishing of the best
+  (:func:`~bayesbeam.inference.optimum.newton_polish`); after sampling, a chain point
+  above the MAP replaces it (:meth:`_Engine._scored`);
 * **start points** (:meth:`_Engine.starts`): the current MAP with the new parameters
   at neutral values (:func:`~bayesbeam.inference.starts.neutral_value`), and
   physics-based starts from the data's modal estimates
@@ -18,8 +15,9 @@ per model (problem, MAP, Laplace log evidence, sampled score, residual signature
   the measured f2/f1, a point mass along the f2/f1 curve, E for f1, damping
   coefficients for the measured decay rates, drag or friction for the measured ζ1);
 * **confirmation** (:meth:`_Engine.confirm`): emcee from the MAP in the sampler's
-  coordinates (:func:`_sample`)
-  then bridge-sampling evidence and PSIS-LOO (:func:`bayesbeam.comparison.scoring.evaluate`).
+  coordinates (:func:`_sample`,
+  :func:`~bayesbeam.inference.coordinates.sample_in_coordinates`), then bridge-sampling
+  evidence and PSIS-LOO (:func:`bayesbeam.comparison.scoring.evaluate`).
 
 The procedure, thresholds and records are in :mod:`bayesbeam.diagnosis.diagnose`, which
 re-exports :class:`DiagnoseError` (defined here so that this module need not import
@@ -36,11 +34,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.optimize as sopt
 
+from bayesbeam.inference.coordinates import PREBURN_STEPS, SamplerCoordinates, sample_in_coordinates
+from bayesbeam.inference.optimum import local_map, map_bounds, newton_polish
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import Model
-from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
 from bayesbeam.trials.trial import Trial
 
 __all__ = ["DiagnoseError"]
@@ -118,55 +116,14 @@ class _Engine:
         U = pb.priors.to_u(X)
         if st.u is not None:
             U = np.vstack([st.u[None], U])
-        bounds = _bounds(pb)
-        # L-BFGS-B runs in the sampler's coordinates (fit.SamplerCoordinates: log total
-        # first-mode damping and log ratios of the laws): the viscous/KV trade-off that a
-        # record fixes only in total is a curved valley in u, along which L-BFGS-B crawls
-        # (on Al 50 cm #0 it stopped 190-410 nats short), and a straight one in v. The
-        # map has unit Jacobian; the grouped coordinates are unbounded there (the
-        # density is -inf outside the prior, which the line search backs off from).
-        coords = fitmod.SamplerCoordinates(pb)
-        vbounds = [(None, None) if j in set(coords.group.tolist()) else b
-                   for j, b in enumerate(bounds)]
-
-        def f_v(V: np.ndarray) -> np.ndarray:
-            return pb.log_prob(coords.to_u(V))
-
         for u0 in U:
-            x, v = coords.to_v(u0), -math.inf
-            for _ in range(4):
-                # Restarting L-BFGS-B resets its curvature memory; on these narrow,
-                # curved ridges a restart often gains several nats (up to 4 passes). Each
-                # pass works in units of the coordinates' conditional sd at its start
-                # (curvatures span 1e2-1e13 on a whole record, the modal amplitudes in
-                # m/s² being the stiffest; unscaled, the gradient's step of 1e-6 is many
-                # sd in them and L-BFGS-B stops early).
-                x0, sc = x, _curvature_scales(f_v, x)
-                zb = [(None if b[0] is None else (b[0] - x0[j]) / sc[j],
-                       None if b[1] is None else (b[1] - x0[j]) / sc[j])
-                      for j, b in enumerate(vbounds)]
-
-                def negf(z: np.ndarray, x0=x0, sc=sc) -> tuple[float, np.ndarray]:
-                    # One-sided on a prior bound (e.g. rho = 0): a central difference
-                    # would be infinite there and the optimiser would never leave it.
-                    val, g = fd_gradient(lambda Z: f_v(x0 + Z * sc), z, 1e-6, one_sided=True)
-                    if not np.isfinite(val):
-                        return 1e300, np.zeros_like(z)
-                    return -val, -g
-
-                res = sopt.minimize(negf, np.zeros_like(x0), jac=True, method="L-BFGS-B",
-                                    bounds=zb, options={"maxiter": 300})
-                x_new = x0 + res.x * sc
-                v_new = float(f_v(x_new[None])[0])
-                gain = v_new - v
-                if gain > 0:
-                    x, v = x_new, v_new
-                if not gain > 1e-3:
-                    break
+            # Scaled L-BFGS-B passes in the sampler's coordinates (optimum.local_map): on
+            # Al 50 cm #0 the unscaled search in u stopped 190-410 nats short.
+            u, v = local_map(pb, u0)
             if v > st.lp:
-                st.u, st.lp = np.asarray(coords.to_u(x), dtype=float), v
+                st.u, st.lp = u, v
         if st.u is not None and np.isfinite(st.lp):
-            st.u, st.lp = _newton_polish(pb.log_prob, st.u, st.lp, bounds)
+            st.u, st.lp = newton_polish(pb.log_prob, st.u, st.lp, map_bounds(pb))
         if st.u is None or not np.isfinite(st.lp):
             raise DiagnoseError(f"no start of model {pb.model.name!r} has a finite posterior "
                                 "density; check the trial's units and the priors")
@@ -313,7 +270,7 @@ class _Engine:
             pb = st.problem
             i = int(np.nanargmax(lp))
             u, v = np.asarray(chain.flat_samples[i], dtype=float), float(lp[i])
-            u, v = _newton_polish(pb.log_prob, u, v, _bounds(pb))
+            u, v = newton_polish(pb.log_prob, u, v, map_bounds(pb))
             self.log(f"  {pb.model.name}: MAP moved {v - st.lp:.2f} up, to the chains' best "
                      "point (polished)")
             st.u, st.lp = u, v
@@ -395,68 +352,6 @@ def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:
     return score, notes, time.perf_counter() - t0
 
 
-def _curvature_scales(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
-    """Return the conditional sd ``1/sqrt(-∂²f/∂x_j²)`` of each coordinate at ``x``.
-
-    Central second differences in one batched call; 1 where the curvature is not
-    positive.
-    """
-    d = x.size
-    h = 1e-4 * np.maximum(1.0, np.abs(x))
-    X = np.repeat(x[None], 2 * d + 1, axis=0)
-    X[1:d + 1] += np.diag(h)
-    X[d + 1:] -= np.diag(h)
-    with np.errstate(all="ignore"):
-        F = f(X)
-        curv = -(F[1:d + 1] - 2 * F[0] + F[d + 1:]) / h**2
-    ok = np.isfinite(curv) & (curv > 0)
-    return np.where(ok, 1.0 / np.sqrt(np.where(ok, curv, 1.0)), 1.0)
-
-
-def _bounds(pb: Any) -> list[tuple[float | None, float | None]]:
-    """L-BFGS-B bounds in the sampling space: the prior's, 1e-9 inside; None if open."""
-    return [(lo + 1e-9, hi - 1e-9) if np.isfinite(lo) and np.isfinite(hi) else (None, None)
-            for lo, hi in pb.priors.bounds_u]
-
-
-def _newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,
-                   bounds: Sequence[tuple[float | None, float | None]],
-                   iters: int = 6) -> tuple[np.ndarray, float]:
-    """Damped Newton steps with a finite-difference Hessian from a near-optimal point.
-
-    L-BFGS-B crawls along the narrow curved ridges of these posteriors (curvatures
-    spanning 1e3-1e10 in u) and can stop a few nats short; two or three Newton steps
-    with steps of 0.2 conditional sd finish the job. Each step is one vectorised call.
-    """
-    lo = np.array([-np.inf if b[0] is None else b[0] for b in bounds])
-    hi = np.array([np.inf if b[1] is None else b[1] for b in bounds])
-    h = 1e-4 * np.maximum(1.0, np.abs(u))
-    for _ in range(iters):
-        with np.errstate(all="ignore"):
-            _, g, H = fd_hessian(f, u, h)
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
-            break
-        curv = -np.diag(H)
-        # Steps of 0.2 conditional sd where the curvature is positive; keep h elsewhere.
-        h = np.where(curv > 0, 0.2 / np.sqrt(np.where(curv > 0, curv, 1.0)), h)
-        w, V = np.linalg.eigh(-0.5 * (H + H.T))
-        # Levenberg shift keeps the step an ascent direction where -H is not PD.
-        w = np.maximum(w, 1e-8 * max(float(np.max(np.abs(w))), 1e-300))
-        step = V @ ((V.T @ g) / w)
-        moved = False
-        for _ in range(12):
-            un = np.clip(u + step, lo, hi)
-            vn = float(f(un[None])[0])
-            if np.isfinite(vn) and vn > v:
-                moved = vn > v + 1e-4
-                u, v = un, vn
-                break
-            step = 0.5 * step
-        if not moved:
-            break
-    return u, v
-
-
 def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any],
             notes: list[str]) -> Any:
     """Sample with emcee from a ball around the MAP (:func:`~.fit.walker_scale`).
@@ -469,35 +364,27 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     from bayesbeam.inference import fit as fitmod
     from bayesbeam.inference.results import FitResult, make_provenance
     from bayesbeam.inference.settings import walker_count
-    from bayesbeam.stats.sampling import NotConvergedWarning, de_moves, init_walkers, run_emcee
+    from bayesbeam.stats.sampling import NotConvergedWarning, init_walkers
 
     rng = np.random.default_rng(seed)
     ndim = pb.ndim
     nwalkers = walker_count(settings["nwalkers"], ndim)
     u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng,
                       scale=fitmod.walker_scale(pb, u_map))
-    coords = fitmod.SamplerCoordinates(pb)
-
-    def log_prob_v(V: np.ndarray) -> np.ndarray:
-        return pb.log_prob(coords.to_u(V))
-
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
-        chain = run_emcee(log_prob_v, coords.to_v(u0), seed=seed,
-                          max_steps=int(settings["max_steps"]),
-                          min_steps=int(settings["min_steps"]),
-                          target_ess=float(settings["target_ess"]), names=pb.names,
-                          moves=de_moves(), progress=False,
-                          # As in fit(): a discarded first run returns stranded walkers.
-                          preburn=min(fitmod.PREBURN_STEPS, int(settings["max_steps"]) // 4))
+        chain = sample_in_coordinates(
+            pb.log_prob, SamplerCoordinates(pb), u0, seed=seed,
+            max_steps=int(settings["max_steps"]), min_steps=int(settings["min_steps"]),
+            target_ess=float(settings["target_ess"]), names=pb.names, progress=False,
+            # As in fit(): a discarded first run returns stranded walkers.
+            preburn=min(PREBURN_STEPS, int(settings["max_steps"]) // 4))
     for w in caught:
         if issubclass(w.category, NotConvergedWarning):
             notes.append(f"{pb.model.name}: {w.message}")
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if not coords.identity:
-        chain = fitmod.chain_in_u(chain, coords.to_u(chain.samples))
     X = pb.theta(chain.samples.reshape(-1, ndim))
     derived = {k: v.reshape(chain.samples.shape[:2]) for k, v in pb.derived(X).items()}
     return FitResult(

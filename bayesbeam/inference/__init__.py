@@ -1,7 +1,9 @@
 """One model on one trial: log posterior, MAP, emcee posterior, result record.
 
 One model on one trial: the log posterior (:class:`Problem`), MAP and emcee
-posterior (``bayesbeam.inference.fit.fit``), its settings and their defaults
+posterior (``bayesbeam.inference.fit.fit``; the MAP search in
+:mod:`~bayesbeam.inference.optimum`, the sampler's coordinates in
+:mod:`~bayesbeam.inference.coordinates`), its settings and their defaults
 (:class:`FitSettings`), the :class:`FitResult` record, and posterior-predictive draws
 (:func:`posterior_predictive`); one model on several trials with shared and pooled
 parameters (:class:`JointProblem`, ``fit_joint``).
@@ -30,11 +32,13 @@ _EXPORTS = {
     "JointFit": ".joint_fit",
     "JointProblem": ".joint",
     "PoolCoordinates": ".joint",
-    "diagonal_sd": ".fit",
+    "diagonal_sd": ".optimum",
     "laplace_covariance": ".fit",
     "walker_scale": ".fit",
-    "local_map": ".fit",
+    "local_map": ".optimum",
+    "map_bounds": ".optimum",
     "mesh_check": ".mesh",
+    "newton_polish": ".optimum",
     "make_provenance": ".results",
     "posterior_predictive": ".predictive",
     "predictive_draws": ".predictive",
@@ -43,7 +47,8 @@ _EXPORTS = {
     "profile_linear": ".fit",
     "reference_modulus": ".problem",
     "ResultError": ".results",
-    "SamplerCoordinates": ".fit",
+    "SamplerCoordinates": ".coordinates",
+    "sample_in_coordinates": ".coordinates",
     "scan_E": ".fit",
     "walker_count": ".settings",
 }

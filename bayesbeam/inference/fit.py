@@ -20,36 +20,36 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.optimize as sopt
-from scipy.special import logsumexp
 
 from bayesbeam.inference.adequacy import assess
+from bayesbeam.inference.coordinates import (
+    PREBURN_STEPS,
+    SamplerCoordinates,
+    sample_in_coordinates,
+)
 from bayesbeam.inference.mesh import converge_mesh
-from bayesbeam.inference.problem import BETA1, Problem, amplitude_names, record_f1
+from bayesbeam.inference.optimum import diagonal_sd, local_map, map_bounds, newton_polish
+from bayesbeam.inference.problem import Problem, amplitude_names, record_f1
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 from bayesbeam.physics.propagate import single_blas_thread
-from bayesbeam.stats.convergence import autocorr_time, ess_rhat
-from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform
-from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
-from bayesbeam.stats.sampling import Chain, de_moves, init_walkers, run_emcee
+from bayesbeam.stats.numdiff import fd_hessian
+from bayesbeam.stats.sampling import Chain, init_walkers
 from bayesbeam.trials.modal_id import first_mode_decay_rate
 from bayesbeam.trials.trial import Trial
 
 __all__ = [
     "FitError",
-    "SamplerCoordinates",
     "clip_to_prior",
     "find_map",
     "fit",
-    "diagonal_sd",
     "laplace_covariance",
     "walker_scale",
     "profile_linear",
@@ -349,49 +349,6 @@ def laplace_covariance(problem: Problem, u: np.ndarray, h: float = 1e-4) -> np.n
     return Li.T @ Li
 
 
-def diagonal_sd(log_prob: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
-                rounds: int = 3) -> np.ndarray:
-    """Conditional posterior sd of each coordinate from second differences of log_prob.
-
-    The fallback of :func:`walker_scale` where the full Laplace covariance fails (MAP
-    on a prior bound, -H not positive definite). Per coordinate ``k`` the curvature
-    ``c = -∂²lp/∂u_k²`` comes from a central second difference, or a forward one
-    (``u, u+h, u+2h``) where ``u - h`` leaves the support; the step starts at 1e-6 and is
-    set to half the implied sd ``c^-1/2`` in the next round, so that it matches the
-    posterior's own scale whether that is 1e-6 (E, known to ppm) or 1 (a weak parameter).
-
-    Parameters
-    ----------
-    log_prob : callable
-        Vectorised log density, ``(k, ndim) -> (k,)`` (-inf outside the support).
-    u : ndarray, shape (ndim,)
-        The point (a MAP), inside the support.
-    rounds : int
-        Step adaptations.
-
-    Returns
-    -------
-    ndarray, shape (ndim,)
-        NaN where the curvature is not positive.
-    """
-    u = np.asarray(u, dtype=float)
-    ndim = u.size
-    h = np.full(ndim, 1e-6)
-    sd = np.full(ndim, np.nan)
-    f0 = float(log_prob(u[None])[0])
-    for _ in range(rounds):
-        E = np.diag(h)
-        pts = np.concatenate([u + E, u - E, u + 2 * E])
-        f = log_prob(pts)
-        fp, fm, f2 = f[:ndim], f[ndim:2 * ndim], f[2 * ndim:]
-        central = np.isfinite(fm)
-        curv = np.where(central, -(fp - 2 * f0 + fm), -(f2 - 2 * fp + f0)) / h**2
-        ok = np.isfinite(curv) & (curv > 0)
-        sd = np.where(ok, 1.0 / np.sqrt(np.where(ok, curv, 1.0)), np.nan)
-        h = np.where(ok, np.clip(0.5 * sd, 1e-9, 0.5), h)
-    return sd
-
-
 def walker_scale(problem: Problem, u: np.ndarray, fraction: float = 0.1) -> np.ndarray:
     """Per-coordinate sd of the initial walker ball around the MAP ``u``.
 
@@ -423,41 +380,6 @@ def walker_scale(problem: Problem, u: np.ndarray, fraction: float = 0.1) -> np.n
     return np.clip(scale, 1e-8, 0.5)
 
 
-#: Steps of the discarded first run that returns stranded walkers to the ensemble
-#: (:func:`bayesbeam.stats.sampling.preburn_walkers`); ~10 % of a typical fit's steps.
-PREBURN_STEPS = 200
-
-
-def local_map(problem: Problem, u0: np.ndarray, *, maxiter: int = 300) -> tuple[np.ndarray, float]:
-    """Local MAP search (L-BFGS-B on finite-difference gradients) from one start.
-
-    Parameters
-    ----------
-    problem : Problem
-    u0 : ndarray, shape (ndim,)
-        Start in the sampling space.
-    maxiter : int
-
-    Returns
-    -------
-    u : ndarray, shape (ndim,)
-    log_prob : float
-        ``-inf`` when the search found no finite density.
-    """
-    def negf(u: np.ndarray) -> tuple[float, np.ndarray]:
-        v, g = fd_gradient(problem.log_prob, u, 1e-6)
-        if not np.isfinite(v):
-            return 1e300, np.zeros_like(u)
-        g = np.where(np.isfinite(g), g, 0.0)
-        return -v, -g
-
-    bounds = [tuple(b) if np.all(np.isfinite(b)) else (None, None) for b in problem.priors.bounds_u]
-    bounds = [(lo + 1e-9, hi - 1e-9) if lo is not None else (None, None) for lo, hi in bounds]
-    res = sopt.minimize(negf, np.asarray(u0, dtype=float), jac=True, method="L-BFGS-B",
-                        bounds=bounds, options={"maxiter": maxiter})
-    return res.x, float(problem.log_prob(res.x[None])[0])
-
-
 def _physics_rows(problem: Problem) -> np.ndarray:
     """Physics-based starts for a model with structural or amplitude-dependent parts.
 
@@ -485,7 +407,9 @@ def find_map(
     rng : numpy.random.Generator
     n_starts : int
         Data-driven starts (the first shares damping evenly among the laws, the others
-        at random), each refined by an E scan and L-BFGS-B. Models with a structural or
+        at random), each refined by an E scan and the scaled L-BFGS-B of
+        :func:`~bayesbeam.inference.optimum.local_map`; the best is polished by
+        :func:`~bayesbeam.inference.optimum.newton_polish`. Models with a structural or
         amplitude-dependent part get the physics-based starts of
         :func:`bayesbeam.inference.starts.physics_starts` too (their posteriors have
         modes besides E's: e.g. a point mass along the curve of equal f2/f1).
@@ -509,103 +433,7 @@ def find_map(
             "no starting point with a finite posterior density was found; check the trial's "
             "units and the priors (bayesbeam fit --priors)"
         )
-    return best_u, best_v
-
-
-class SamplerCoordinates:
-    """Coordinates the ensemble moves in: the damping laws' total and split.
-
-    With two or more damping laws, the data fix the first mode's total damping ratio
-    ζ1 = Σ_j ζ1_j very tightly and the split among the laws only loosely (through the
-    higher modes). In the log coordinates ``u_j = log x_j`` of the priors that ridge
-    is a curved (hyperbolic) valley, which the affine-invariant moves of emcee cross
-    slowly: integrated autocorrelation times ~70 steps for ``viscous+kv`` and ~110 for
-    ``viscous+sh`` on the benchmark trial. The sampler therefore moves in
-
-        v_tot = log Σ_j exp(u_j + c_j),     w_j = u_j - u_1  (j >= 2),
-
-    with ``exp(u_j + c_j)`` the law's first-mode damping ratio at the prior's median
-    modulus (physics.md §2: ``ζ = gamma/(2 rhoA ω1)``, ``c_d ω1/(2E)``,
-    ``eta ω1/(2 E I)`` with eta as in :mod:`bayesbeam.inference.problem`). Both the total and the
-    log ratios are straight in these coordinates; τ drops to 20–30 steps. The map is
-    a bijection with unit Jacobian (``det ∂(v_tot, w)/∂u = Σ_j p_j = 1``, ``p_j`` the
-    shares), so the density is unchanged: ``log_prob_v(v) = log_prob(u(v))``.
-
-    Laws whose prior is not on ``log x`` (a user's Uniform or Normal override), and
-    models with fewer than two laws, are left in ``u`` (the identity map).
-
-    Parameters
-    ----------
-    problem : Problem
-    """
-
-    _LOG = (LogUniform, LogNormal, HalfNormal)
-
-    def __init__(self, problem: Problem) -> None:
-        beam = problem.trial.beam
-        pri = problem.priors
-        pE = pri["E"]
-        E_c = float(pE.from_u(pE.ppf_u(0.5)))  # prior median: fixed, so resume-safe
-        w1 = BETA1**2 * np.sqrt(E_c * beam.I / (beam.rhoA * beam.length**4))
-        scale = {
-            "gamma": 1.0 / (2 * beam.rhoA * w1),
-            "c_d": w1 / (2 * E_c),
-            "eta": w1 / (2 * E_c * beam.I),
-        }
-        idx = [problem.names.index(n) for n in scale
-               if n in problem.names and isinstance(pri[n], self._LOG)]
-        self.group = np.array(idx if len(idx) >= 2 else [], dtype=int)
-        self.c = np.log([scale[problem.names[j]] for j in self.group])
-
-    @classmethod
-    def on_columns(cls, group: Any, c: Any) -> SamplerCoordinates:
-        """Make the same map on other columns (e.g. one trial's laws inside a joint fit).
-
-        Parameters
-        ----------
-        group : sequence of int
-            Columns of the laws (two or more).
-        c : sequence of float
-            Their log first-mode damping ratio per unit parameter (as ``self.c``).
-
-        Returns
-        -------
-        SamplerCoordinates
-        """
-        out = cls.__new__(cls)
-        out.group = np.asarray(group, dtype=int)
-        out.c = np.asarray(c, dtype=float)
-        if out.group.size == 1 or out.group.shape != out.c.shape:
-            raise ValueError("on_columns needs two or more columns and one scale per column")
-        return out
-
-    @property
-    def identity(self) -> bool:
-        """True when the sampler works in ``u`` itself."""
-        return self.group.size == 0
-
-    def to_v(self, U: np.ndarray) -> np.ndarray:
-        """Map sampling-space points to sampler coordinates, shape (..., ndim) kept."""
-        U = np.asarray(U, dtype=float)
-        if self.identity:
-            return U.copy()
-        g = self.group
-        V = U.copy()
-        V[..., g[0]] = logsumexp(U[..., g] + self.c, axis=-1)
-        V[..., g[1:]] = U[..., g[1:]] - U[..., g[:1]]
-        return V
-
-    def to_u(self, V: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`to_v`."""
-        V = np.asarray(V, dtype=float)
-        if self.identity:
-            return V.copy()
-        g = self.group
-        w = np.zeros(V.shape[:-1] + (g.size,))
-        w[..., 1:] = V[..., g[1:]]
-        U = V.copy()
-        U[..., g] = w + (V[..., g[0]] - logsumexp(w + self.c, axis=-1))[..., None]
-        return U
+    return newton_polish(problem.log_prob, best_u, best_v, map_bounds(problem))
 
 
 _SAMPLER_OPTIONS = ("n_tau", "tau_rtol", "check_every", "burn_in_taus", "thin",
@@ -640,31 +468,6 @@ def checkpoint_path(outdir: str | Path | None, resume: bool) -> Path | None:
     if backend.exists() and not resume:
         backend.unlink()
     return backend
-
-
-def chain_in_u(chain: Chain, u_samples: np.ndarray, log_prob: np.ndarray | None = None) -> Chain:
-    """Return the chain moved back from the sampler's coordinates to the sampling space ``u``.
-
-    Convergence was judged in the sampler's coordinates; τ, ESS and R-hat are reported
-    for the parameters themselves, with the estimators of the stopping rule (tol 0: τ
-    as estimated, no length requirement here).
-
-    Parameters
-    ----------
-    chain : Chain
-    u_samples : ndarray, shape (nsteps, nwalkers, ndim)
-    log_prob : ndarray, shape (nsteps, nwalkers), optional
-        The log density in ``u`` where the map's Jacobian is not 1.
-
-    Returns
-    -------
-    Chain
-    """
-    tau, _ = autocorr_time(u_samples, 0.0)
-    ess, rhat = ess_rhat(u_samples)
-    lp = chain.log_prob if log_prob is None else log_prob
-    return dataclasses.replace(chain, samples=u_samples, log_prob=lp, tau=tau, ess=ess,
-                               rhat=rhat)
 
 
 @single_blas_thread
@@ -756,28 +559,22 @@ def fit(
     scale = walker_scale(problem, u_map)
     u0 = init_walkers(problem.log_prob, u_map, nwalkers, rng=rng, scale=scale)
     coords = SamplerCoordinates(problem)
-
-    def log_prob_v(V: np.ndarray) -> np.ndarray:
-        return problem.log_prob(coords.to_u(V))  # unit Jacobian: see SamplerCoordinates
-    backend = checkpoint_path(outdir, resume)
-    chain: Chain = run_emcee(
-        log_prob_v,
-        coords.to_v(u0),
+    chain: Chain = sample_in_coordinates(
+        problem.log_prob,
+        coords,
+        u0,
         seed=seed,
         max_steps=max_steps,
         min_steps=min_steps,
         target_ess=target_ess,
-        backend_path=backend,
+        backend_path=checkpoint_path(outdir, resume),
         resume=resume,
         progress=progress,
         names=problem.names,
-        moves=de_moves(),
         preburn=PREBURN_STEPS,
         label=f"fit {problem.model.name}: emcee",
         **sampler_kw,
     )
-    if not coords.identity:
-        chain = chain_in_u(chain, coords.to_u(chain.samples))
     samples = chain.samples
     X = problem.theta(samples.reshape(-1, ndim))
     derived = {k: v.reshape(samples.shape[:2]) for k, v in problem.derived(X).items()}

@@ -24,24 +24,21 @@ import numpy as np
 
 from bayesbeam._util import finite_json
 from bayesbeam.inference.adequacy import assess
-from bayesbeam.inference.fit import (
+from bayesbeam.inference.coordinates import (
     PREBURN_STEPS,
     SamplerCoordinates,
-    _sampler_options,
-    chain_in_u,
-    checkpoint_path,
-    find_map,
-    local_map,
-    walker_scale,
+    sample_in_coordinates,
 )
+from bayesbeam.inference.fit import _sampler_options, checkpoint_path, find_map, walker_scale
 from bayesbeam.inference.joint import TIP_DISTANCE, JointProblem, PoolCoordinates
 from bayesbeam.inference.mesh import converge_mesh
+from bayesbeam.inference.optimum import local_map
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.physics.propagate import single_blas_thread
 from bayesbeam.stats.convergence import autocorr_time, ess_rhat
-from bayesbeam.stats.sampling import Chain, de_moves, init_walkers, run_emcee
+from bayesbeam.stats.sampling import Chain, init_walkers
 from bayesbeam.trials.trial import Trial
 
 __all__ = ["JointFit", "fit_joint"]
@@ -253,6 +250,12 @@ class _Coordinates:
             U = m.to_u(U)
         return self.pool.to_u(U)
 
+    @property
+    def free(self) -> np.ndarray:
+        """Columns of ``v`` with no bound: the pooled ``z`` and the laws' total and ratios."""
+        cols = [z for _, _, z in self.pool.groups] + [m.group for m in self.laws]
+        return np.unique(np.concatenate(cols)) if cols else np.array([], dtype=int)
+
     def log_jacobian(self, V: np.ndarray) -> np.ndarray:
         """``log |∂u/∂v|``: the pool map's (the law maps' is 1).
 
@@ -360,7 +363,8 @@ def fit_joint(
     span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
     x0 = np.clip(x0, lo + 1e-6 * span, hi - 1e-6 * span)
     say(f"joint {model.name}: joint MAP ({jp.ndim} parameters, {len(trials)} trials)")
-    u_map, lp_map = local_map(jp, jp.priors.to_u(x0[None])[0])
+    coords = _Coordinates(jp)
+    u_map, lp_map = local_map(jp, jp.priors.to_u(x0[None])[0], coords=coords)
     if not np.isfinite(lp_map):
         from bayesbeam.inference.fit import FitError
 
@@ -370,22 +374,12 @@ def fit_joint(
     nwalkers = walker_count(nwalkers, ndim)
     scale = walker_scale(jp, u_map)
     u0 = init_walkers(jp.log_prob, u_map, nwalkers, rng=rng, scale=scale)
-    coords = _Coordinates(jp)
-
-    def log_prob_v(V: np.ndarray) -> np.ndarray:
-        out = jp.log_prob(coords.to_u(V))
-        return out + coords.log_jacobian(V)
-
-    backend = checkpoint_path(outdir, resume)
-    chain: Chain = run_emcee(
-        log_prob_v, coords.to_v(u0), seed=seed, max_steps=max_steps, min_steps=min_steps,
-        target_ess=target_ess, backend_path=backend, resume=resume, progress=progress,
-        names=jp.names, moves=de_moves(), preburn=PREBURN_STEPS,
+    chain: Chain = sample_in_coordinates(
+        jp.log_prob, coords, u0, seed=seed, max_steps=max_steps, min_steps=min_steps,
+        target_ess=target_ess, backend_path=checkpoint_path(outdir, resume), resume=resume,
+        progress=progress, names=jp.names, preburn=PREBURN_STEPS,
         label=f"joint {model.name}: emcee", **sampler_kw,
     )
-    if not coords.identity:
-        chain = chain_in_u(chain, coords.to_u(chain.samples),
-                           chain.log_prob - coords.log_jacobian(chain.samples))
     settings = {
         "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh), "initial": initial,
         "nwalkers": nwalkers, "target_ess": target_ess, "max_steps": max_steps,

@@ -395,22 +395,6 @@ def test_the_chains_best_point_becomes_the_map():
     assert np.array_equal(st.u, u_before) and st.lp == lp_before
 
 
-def test_curvature_scales_are_the_conditional_sds():
-    # A Gaussian log density with precisions spanning 1e2-1e12 (the range of a whole
-    # record's posterior): the scales are its conditional sds, 1 where it is not concave.
-    from bayesbeam.diagnosis.search import _curvature_scales
-
-    c = np.array([1e2, 1e6, 1e12, -3.0])
-    x0 = np.array([0.3, -2.0, 1e-4, 5.0])
-
-    def f(X):
-        return -0.5 * np.sum(c * (X - x0) ** 2, axis=-1)
-
-    sc = _curvature_scales(f, x0 + np.array([0.01, 0.0, 1e-7, 0.0]))
-    assert np.allclose(sc[:3], 1 / np.sqrt(c[:3]), rtol=1e-6)
-    assert sc[3] == 1.0
-
-
 def test_softening_signature_and_starts():
     # The data's f1 falls with amplitude beyond the linear model's (signature), and the
     # starts of the extended model put f1_slope at the measured slope.

@@ -1,0 +1,256 @@
+"""Local MAP search: scaled L-BFGS-B in the sampler's coordinates, then Newton polishing.
+
+The posteriors of a whole measured record are narrow and badly scaled: at the MAP of
+Al 50 cm #0 (9868 samples) the curvatures of the sampling space span 1e2–1e13, the
+modal amplitudes in m/s² being the stiffest, and with two damping laws the mode lies
+on a curved ridge along which the record fixes only the total damping. L-BFGS-B on
+the raw coordinates with a fixed finite-difference step stops there hundreds of nats
+short (-5365.9 against -4950.9). Three measures, each cheap:
+
+* the search runs in the sampler's coordinates
+  (:class:`~bayesbeam.inference.coordinates.SamplerCoordinates`), where the ridge is
+  straight;
+* each L-BFGS-B pass works in units of the coordinates' conditional sd at its start
+  (:func:`curvature_scales`), and passes restart while they gain (a restart also
+  resets L-BFGS-B's curvature memory);
+* :func:`newton_polish` finishes with damped Newton steps on a finite-difference
+  Hessian.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import scipy.optimize as sopt
+
+from bayesbeam.inference.coordinates import Coordinates, SamplerCoordinates
+from bayesbeam.inference.problem import Problem
+from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
+
+__all__ = ["curvature_scales", "diagonal_sd", "local_map", "map_bounds", "newton_polish"]
+
+#: L-BFGS-B passes at most per start; a pass that gains under :data:`PASS_GAIN` nats ends
+#: the search. On Al 50 cm #0 the second and third passes gained several nats each.
+MAX_PASSES = 4
+PASS_GAIN = 1e-3
+
+
+def map_bounds(problem: Any) -> list[tuple[float | None, float | None]]:
+    """L-BFGS-B bounds in the sampling space: the prior's, 1e-9 inside; None if open.
+
+    Parameters
+    ----------
+    problem : Problem or JointProblem
+        Anything with ``priors.bounds_u``, shape (ndim, 2).
+
+    Returns
+    -------
+    list of (float or None, float or None)
+    """
+    return [(lo + 1e-9, hi - 1e-9) if np.isfinite(lo) and np.isfinite(hi) else (None, None)
+            for lo, hi in problem.priors.bounds_u]
+
+
+def diagonal_sd(log_prob: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
+                rounds: int = 3, h: float | np.ndarray = 1e-6) -> np.ndarray:
+    """Conditional posterior sd of each coordinate from second differences of log_prob.
+
+    The fallback of :func:`~bayesbeam.inference.fit.walker_scale` where the full Laplace
+    covariance fails (MAP on a prior bound, -H not positive definite), and the scales of
+    the MAP search (:func:`curvature_scales`). Per coordinate ``k`` the curvature
+    ``c = -∂²lp/∂u_k²`` comes from a central second difference, or a forward one
+    (``u, u+h, u+2h``) where ``u - h`` leaves the support; the step starts at ``h`` and is
+    set to half the implied sd ``c^-1/2`` in the next round, so that it matches the
+    posterior's own scale whether that is 1e-6 (E, known to ppm) or 1 (a weak parameter).
+
+    Parameters
+    ----------
+    log_prob : callable
+        Vectorised log density, ``(k, ndim) -> (k,)`` (-inf outside the support).
+    u : ndarray, shape (ndim,)
+        The point (a MAP), inside the support.
+    rounds : int
+        Step adaptations.
+    h : float or ndarray, shape (ndim,)
+        First step, sampling-space units.
+
+    Returns
+    -------
+    ndarray, shape (ndim,)
+        NaN where the curvature is not positive.
+    """
+    u = np.asarray(u, dtype=float)
+    ndim = u.size
+    h = np.broadcast_to(np.asarray(h, dtype=float), (ndim,)).copy()
+    sd = np.full(ndim, np.nan)
+    f0 = float(log_prob(u[None])[0])
+    for _ in range(rounds):
+        E = np.diag(h)
+        pts = np.concatenate([u + E, u - E, u + 2 * E])
+        f = log_prob(pts)
+        fp, fm, f2 = f[:ndim], f[ndim:2 * ndim], f[2 * ndim:]
+        central = np.isfinite(fm)
+        curv = np.where(central, -(fp - 2 * f0 + fm), -(f2 - 2 * fp + f0)) / h**2
+        ok = np.isfinite(curv) & (curv > 0)
+        sd = np.where(ok, 1.0 / np.sqrt(np.where(ok, curv, 1.0)), np.nan)
+        h = np.where(ok, np.clip(0.5 * sd, 1e-9, 0.5), h)
+    return sd
+
+
+
+def curvature_scales(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
+    """Return the conditional sd ``1/sqrt(-∂²f/∂x_j²)`` of each coordinate at ``x``.
+
+    One round of :func:`diagonal_sd` with steps ``1e-4 max(1, |x|)`` (wide enough to see
+    the curvature of a weak coordinate away from the mode, where a 1e-6 step measures
+    round-off); 1 where the curvature is not positive (a direction the search should
+    move in at its own pace).
+
+    Parameters
+    ----------
+    f : callable
+        Vectorised log density, ``(k, ndim) -> (k,)``.
+    x : ndarray, shape (ndim,)
+
+    Returns
+    -------
+    ndarray, shape (ndim,)
+    """
+    x = np.asarray(x, dtype=float)
+    with np.errstate(all="ignore"):
+        sd = diagonal_sd(f, x, rounds=1, h=1e-4 * np.maximum(1.0, np.abs(x)))
+    return np.where(np.isfinite(sd), sd, 1.0)
+
+
+def local_map(problem: Any, u0: np.ndarray, *, maxiter: int = 300,
+              coords: Coordinates | None = None) -> tuple[np.ndarray, float]:
+    """Local MAP search from one start: scaled L-BFGS-B passes in sampler coordinates.
+
+    L-BFGS-B (finite-difference gradient, one-sided on a prior bound, where a central
+    difference would be infinite and the search would never leave it) maximises
+    ``log_prob(u(v))`` over the sampler's coordinates ``v``: a bijection, so the optimum
+    is the MAP in ``u`` (no Jacobian enters). Each pass is scaled by
+    :func:`curvature_scales` at its start; passes repeat, up to :data:`MAX_PASSES`,
+    while one gains more than :data:`PASS_GAIN` nats.
+
+    Parameters
+    ----------
+    problem : Problem or JointProblem
+        Anything with a vectorised ``log_prob`` and ``priors.bounds_u``.
+    u0 : ndarray, shape (ndim,)
+        Start in the sampling space.
+    maxiter : int
+        L-BFGS-B iterations per pass.
+    coords : Coordinates, optional
+        The coordinates to search in; default :class:`SamplerCoordinates` of a
+        :class:`Problem`, ``u`` itself for anything else.
+
+    Returns
+    -------
+    u : ndarray, shape (ndim,)
+    log_prob : float
+        ``-inf`` when the search found no finite density.
+    """
+    if coords is None and isinstance(problem, Problem):
+        coords = SamplerCoordinates(problem)
+    if coords is not None and coords.identity:
+        coords = None
+    bounds = map_bounds(problem)
+    if coords is not None:  # the laws' total and ratios are unbounded (-inf outside)
+        free = {int(j) for j in coords.free}
+        bounds = [(None, None) if j in free else b for j, b in enumerate(bounds)]
+
+        def f(V: np.ndarray) -> np.ndarray:
+            return problem.log_prob(coords.to_u(V))
+    else:
+        f = problem.log_prob
+    x = np.asarray(u0, dtype=float) if coords is None else coords.to_v(u0)
+    v = float(f(x[None])[0])
+    for _ in range(MAX_PASSES):
+        x0, sc = x, curvature_scales(f, x)
+        zb = [(None if lo is None else (lo - x0[j]) / sc[j],
+               None if hi is None else (hi - x0[j]) / sc[j])
+              for j, (lo, hi) in enumerate(bounds)]
+
+        def negf(z: np.ndarray, x0: np.ndarray = x0, sc: np.ndarray = sc
+                 ) -> tuple[float, np.ndarray]:
+            val, g = fd_gradient(lambda Z: f(x0 + Z * sc), z, 1e-6, one_sided=True)
+            if not np.isfinite(val):
+                return 1e300, np.zeros_like(z)
+            return -val, -np.where(np.isfinite(g), g, 0.0)
+
+        res = sopt.minimize(negf, np.zeros_like(x0), jac=True, method="L-BFGS-B",
+                            bounds=zb, options={"maxiter": maxiter})
+        x_new = x0 + res.x * sc
+        v_new = float(f(x_new[None])[0])
+        gain = v_new - v if np.isfinite(v) else (math.inf if np.isfinite(v_new) else 0.0)
+        if gain > 0:
+            x, v = x_new, v_new
+        if not gain > PASS_GAIN:
+            break
+    u = x if coords is None else np.asarray(coords.to_u(x), dtype=float)
+    return u, v
+
+
+def newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,
+                  bounds: Sequence[tuple[float | None, float | None]],
+                  iters: int = 6) -> tuple[np.ndarray, float]:
+    """Damped Newton steps with a finite-difference Hessian from a near-optimal point.
+
+    L-BFGS-B crawls along the narrow curved ridges of these posteriors (curvatures
+    spanning 1e3-1e10 in u) and can stop a few nats short; two or three Newton steps
+    with steps of 0.2 conditional sd finish the job. Each step is one vectorised call.
+
+    Parameters
+    ----------
+    f : callable
+        Vectorised log density, ``(k, ndim) -> (k,)``.
+    u : ndarray, shape (ndim,)
+        The start, with ``v = f(u)``.
+    v : float
+    bounds : sequence of (float or None, float or None)
+        As :func:`map_bounds`; steps are clipped to them.
+    iters : int
+        Newton steps at most.
+
+    Returns
+    -------
+    u : ndarray, shape (ndim,)
+    v : float
+        Never below the ``v`` given.
+    """
+    lo = np.array([-np.inf if b[0] is None else b[0] for b in bounds])
+    hi = np.array([np.inf if b[1] is None else b[1] for b in bounds])
+    h = 1e-4 * np.maximum(1.0, np.abs(u))
+    for _ in range(iters):
+        with np.errstate(all="ignore"):
+            _, g, H = fd_hessian(f, u, h)
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+            break
+        curv = -np.diag(H)
+        sd = np.where(curv > 0, 1.0 / np.sqrt(np.where(curv > 0, curv, 1.0)), 1.0)
+        # Steps of 0.2 conditional sd where the curvature is positive; keep h elsewhere.
+        h = np.where(curv > 0, 0.2 * sd, h)
+        # The Newton system in units of the conditional sd: its eigenvalues then measure
+        # the correlations only, and the Levenberg floor (which keeps the step an ascent
+        # direction where -H is not PD) does not cut the weak directions of a Hessian
+        # whose diagonal spans 1e2-1e13.
+        Hs = -0.5 * (H + H.T) * np.outer(sd, sd)
+        w, V = np.linalg.eigh(Hs)
+        w = np.maximum(w, 1e-8 * max(float(np.max(np.abs(w))), 1e-300))
+        step = sd * (V @ ((V.T @ (g * sd)) / w))
+        moved = False
+        for _ in range(12):
+            un = np.clip(u + step, lo, hi)
+            vn = float(f(un[None])[0])
+            if np.isfinite(vn) and vn > v:
+                moved = vn > v + 1e-4
+                u, v = un, vn
+                break
+            step = 0.5 * step
+        if not moved:
+            break
+    return u, v
