@@ -37,6 +37,10 @@ __all__ = ["curvature_scales", "diagonal_sd", "local_map", "map_bounds", "newton
 MAX_PASSES = 4
 PASS_GAIN = 1e-3
 
+#: Levenberg-Marquardt shifts of :func:`newton_polish`, tried in turn until a step gains
+#: (the Hessian in conditional-sd units has unit diagonal, so 1 is its own scale).
+LM_SHIFTS = (0.0, 1e-3, 1e-2, 1e-1, 1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6)
+
 
 def map_bounds(problem: Any) -> list[tuple[float | None, float | None]]:
     """L-BFGS-B bounds in the sampling space: the prior's, 1e-9 inside; None if open.
@@ -234,23 +238,24 @@ def newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float
         sd = np.where(curv > 0, 1.0 / np.sqrt(np.where(curv > 0, curv, 1.0)), 1.0)
         # Steps of 0.2 conditional sd where the curvature is positive; keep h elsewhere.
         h = np.where(curv > 0, 0.2 * sd, h)
-        # The Newton system in units of the conditional sd: its eigenvalues then measure
-        # the correlations only, and the Levenberg floor (which keeps the step an ascent
-        # direction where -H is not PD) does not cut the weak directions of a Hessian
-        # whose diagonal spans 1e2-1e13.
-        Hs = -0.5 * (H + H.T) * np.outer(sd, sd)
-        w, V = np.linalg.eigh(Hs)
-        w = np.maximum(w, 1e-8 * max(float(np.max(np.abs(w))), 1e-300))
-        step = sd * (V @ ((V.T @ (g * sd)) / w))
+        # The Newton system in units of the conditional sd, where its eigenvalues measure
+        # the correlations only (the diagonal is 1), whatever the curvatures' span
+        # (1e2-1e13 on a whole record). A step that does not gain is retried with a
+        # Levenberg-Marquardt shift mu (Marquardt 1963): shorter and turned toward the
+        # gradient, the usual trust-region fallback where the log density is not
+        # quadratic over a full Newton step (the slow flow's RK4 grid, for one, changes
+        # with the parameters).
+        w, V = np.linalg.eigh(-0.5 * (H + H.T) * np.outer(sd, sd))
+        gs = V.T @ (g * sd)
         moved = False
-        for _ in range(12):
-            un = np.clip(u + step, lo, hi)
+        for mu in LM_SHIFTS:
+            ww = np.maximum(w + mu, 1e-8 * max(float(np.max(np.abs(w))), 1e-300) + mu)
+            un = np.clip(u + sd * (V @ (gs / ww)), lo, hi)
             vn = float(f(un[None])[0])
             if np.isfinite(vn) and vn > v:
                 moved = vn > v + 1e-4
                 u, v = un, vn
                 break
-            step = 0.5 * step
         if not moved:
             break
     return u, v

@@ -110,3 +110,19 @@ def test_newton_polish_solves_a_quadratic_in_one_step():
     u, v = newton_polish(pb.log_prob, u0, v0, map_bounds(pb), iters=1)
     np.testing.assert_allclose((u - mode) / sd, 0.0, atol=1e-5)
     assert v > -1e-9
+
+
+def test_newton_polish_reaches_a_mode_a_full_newton_step_overshoots():
+    # A stiff quadratic coordinate (curvature 1e6) beside a pseudo-Huber one, started 100
+    # units from its mode: there the curvature is ~1e-6 and the full Newton step ~1e6
+    # units, far past the mode (and no halving of it gains). The Levenberg-Marquardt
+    # shifts turn the step toward the gradient; the log density's maximum is 0.
+    def f(X):
+        X = np.atleast_2d(X)
+        return -0.5e6 * (X[:, 0] - 1.0) ** 2 - (np.sqrt(1 + (X[:, 1] - 2.0) ** 2) - 1)
+
+    u0 = np.array([1.0 + 1e-4, 102.0])
+    v0 = float(f(u0)[0])
+    u, v = newton_polish(f, u0, v0, [(None, None)] * 2)
+    assert v0 < -99 and v > -1e-3
+    assert abs(u[1] - 2.0) < 0.05
