@@ -145,22 +145,41 @@ def _real_intervals(result, length: float) -> dict:
             if n in cols}
 
 
+#: Uniform-cantilever frequency ratios f_n/f1 (physics.md §4: (β_n L / β_1 L)²).
+RATIOS = (1.0, 6.2669, 17.5475, 34.3861)
+
+
+def _window(length_cm: int, index: int, duration: float = 2.0, dt: float = 1 / 512):
+    """One aluminium record: ``duration`` s from 0.1 s after the release, resampled to ``dt``."""
+    from bayesbeam.trials.realdata import load_enes
+
+    trial = load_enes(length_cm, index, duration=duration + 0.2).resample(dt)
+    t0 = float(trial.times[0])
+    return trial.window(t0, t0 + duration)
+
+
+def _n_modes(trial) -> int:
+    """Modes of a uniform cantilever (ratios from the first spectral peak) below 0.8 Nyquist."""
+    from bayesbeam.inference.problem import first_frequency
+
+    f1 = first_frequency(trial.times, trial.values)
+    nyq = 0.5 / trial.dt
+    return max(1, sum(1 for r in RATIOS if r * f1 < 0.8 * nyq))
+
+
 def real(lengths: list[int], model: str, settings: dict, say, save) -> dict:
     """Joint fit of the aluminium records at ``lengths`` (cm), then each record alone.
 
     One length: the attachment's position from the clamp is shared; several: its
     distance from the free end (``added_mass_tip_distance``).
     """
-    sys.path.insert(0, str(Path(__file__).parent))
-    from real_data import load, n_modes  # the real-data study's windows, one definition
-
     from bayesbeam.trials.realdata import list_real_datasets
 
     trials = []
     for length_cm in lengths:
         count = sum(1 for r in list_real_datasets() if r.kwargs.get("length_cm") == length_cm)
-        trials += [load(f"enes-alu-{length_cm}cm", 2.0, 1 / 512, index=i) for i in range(count)]
-    k = min(n_modes(t) for t in trials)
+        trials += [_window(length_cm, i) for i in range(count)]
+    k = min(_n_modes(t) for t in trials)
     where = "added_mass_position" if len(set(lengths)) == 1 else TIP_DISTANCE
     physical = parse_model(model).physical_params
     shared = tuple(n for n in ("E", "added_mass") if n in physical)
