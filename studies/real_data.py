@@ -10,7 +10,7 @@ For each record (:func:`bayesbeam.trials.realdata.list_real_datasets`):
 
 1. the raw record is written as a trial file (:func:`bayesbeam.trials.io.write_trial`,
    acceleration in g as recorded; read back in m/s²);
-2. ``bayesbeam diagnose TRIAL -o OUT/LABEL --json`` runs on it with default settings,
+2. ``bayesbeam diagnose TRIAL -o OUT/LABEL`` runs on it with default settings,
    in its own process: the command a user runs, whose preprocessing chooses the span
    (the whole motion), the rate, the modes in band and the offset from the record;
 3. a row is kept: the causes named with Δ log Z ± error, Δ ELPD ± se and the RMS
@@ -22,8 +22,10 @@ Then the repeats of one free length are compared: for every size present in two
 repeats, the difference of their posterior means in units of its combined sd.
 
 Resumable: a record whose ``OUT/LABEL/diagnosis.json`` exists is read, not run again,
-so the study can be spread over several sittings (a whole record takes 20–40 min on
-2 cores). Writes ``OUT/real_data.jsonl`` (one row per record) and ``OUT/real_data.md``.
+so the study can be spread over several sittings (a whole record takes 15–40 min on
+2 cores). Writes ``OUT/real_data.jsonl`` (one row per record), ``OUT/real_data.md`` and,
+per record, the command's output folder ``OUT/LABEL/`` and its progress log
+``OUT/LABEL.log``.
 
 Run: ``python studies/real_data.py --outdir OUT [--records alu50-0,steel]``;
 ``--small`` runs 4 s of one record with a tiny budget (seconds, for the tests; its
@@ -192,18 +194,28 @@ def run_one(rec: Any, outdir: Path, *, small: bool, seed: int,
     trial = rec.load(raw=True)
     path = write_trial(trial, outdir / "trials" / f"{name}.toml", unit="g")
     cmd = [sys.executable, "-m", "bayesbeam", "diagnose", str(path), "-o", str(out),
-           "--json", "--seed", str(seed)]
+           "--seed", str(seed)]
     if small:
         cmd += list(SMALL)
     if log:
         log(f"{name}: {' '.join(cmd[1:])}")
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    # The command's progress lines (stderr) go to OUT/LABEL.log and, with progress on,
+    # to this terminal as they come (a record takes tens of minutes); its narrative
+    # (stdout) is not needed: it writes OUT/LABEL/diagnosis.json itself, atomically, at
+    # the end, so an interrupted record leaves none and is run again on resuming.
+    out.mkdir(parents=True, exist_ok=True)
+    with (outdir / f"{name}.log").open("w", encoding="utf-8") as logf, subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) as proc:
+        for line in proc.stderr:
+            logf.write(line)
+            if log:  # a progress bar's updates come as one line joined by carriage returns
+                log(f"  {name}: {line.rstrip().split(chr(13))[-1]}")
     seconds = time.perf_counter() - t0
-    if proc.returncode != 0:
-        raise RuntimeError(f"{name}: bayesbeam diagnose failed ({proc.returncode}): "
-                           f"{proc.stderr.strip()[-1500:]}")
-    record = json.loads(proc.stdout)
+    if proc.returncode != 0 or not done.is_file():
+        tail = (outdir / f"{name}.log").read_text(encoding="utf-8").strip()[-1500:]
+        raise RuntimeError(f"{name}: bayesbeam diagnose failed ({proc.returncode}): {tail}")
+    record = json.loads(done.read_text(encoding="utf-8"))
     # Keep the wall time beside the output, so that a resumed study still reports it.
     record["study_seconds"] = seconds
     done.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")

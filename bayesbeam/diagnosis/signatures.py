@@ -596,6 +596,10 @@ def plot_signatures(sig: Signatures, *, title: str | None = None) -> Any:
     ax.set(xlabel="mode-1 amplitude [SI]", ylabel="decay rate σ [1/s]",
            title=f"decay vs amplitude: excess data − model {sig.decay_excess_diff:+.2f} "
                  f"± {sig.decay_excess_diff_err:.2f}")
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:  # no decay curves on a record too short for them
+        ax.legend(fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "decay rate vs amplitude not measurable", ha="center",
+                va="center", transform=ax.transAxes, fontsize=8)
     fig.suptitle(title or f"model {sig.model}: residual signatures")
     return fig

@@ -1,5 +1,6 @@
 """Residual signatures: estimators checked against closed forms and brute force."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -63,6 +64,11 @@ def test_signatures_of_the_true_model_are_clean(result_from_samples):
     assert rec["ljung_box"]["white_at_1pc"]
     fig = plot_signatures(sig)
     assert len(fig.axes) >= 6
+    # A record too short for decay windows: the panel says so (no empty legend, whose
+    # warning the command line would print).
+    short = dataclasses.replace(sig, decay_data=None, decay_model=None)
+    fig = plot_signatures(short)
+    assert "not measurable" in " ".join(t.get_text() for ax in fig.axes for t in ax.texts)
 
 
 def test_tip_mass_raises_f2_over_f1_as_the_frequency_equation_says(result_from_samples):
