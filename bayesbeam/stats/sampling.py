@@ -6,8 +6,9 @@ unconstrained sampling space ``u`` (see :mod:`bayesbeam.stats.priors`), in chunk
 ``check_every`` steps, and stops when all of these hold after a chunk (the rule
 and its estimators are in :mod:`bayesbeam.stats.convergence`):
 
-1. the chain is at least ``n_tau`` (default 50) integrated autocorrelation times
-   long, ``n_steps >= n_tau * max(tau)`` (emcee's recommendation);
+1. the chain after burn-in is at least ``n_tau`` (default 50) integrated
+   autocorrelation times long, ``n_kept >= n_tau * max(tau)`` (emcee's
+   recommendation; τ of the kept part, without the walkers' spread from their start);
 2. every ``tau`` changed by less than ``tau_rtol`` (relative) since the previous
    check, i.e. the estimate itself has settled;
 3. the bulk effective sample size (ArviZ, rank-normalised; Vehtari et al. 2021) of
@@ -17,10 +18,11 @@ and its estimators are in :mod:`bayesbeam.stats.convergence`):
 Otherwise it stops at ``max_steps`` and issues a :class:`NotConvergedWarning` saying
 which criterion failed.
 
-Burn-in: the first ``ceil(burn_in_taus * max(tau))`` steps (default 3 τ; capped at
-half the chain) are discarded; the walkers start in a small ball around the MAP,
-so a few τ are enough to forget the start. Thinning (``thin``) only reduces what is
-stored in the returned :class:`Chain`; τ, ESS and R-hat use every step.
+Burn-in: the first ``ceil(burn_in_taus * max(tau_all))`` steps (default 3 τ of the
+whole chain; capped at half the chain) are discarded; the walkers start in a small
+ball around the MAP, so a few τ are enough to forget the start. Thinning (``thin``)
+only reduces what is stored in the returned :class:`Chain`; τ, ESS and R-hat use every
+kept step.
 
 R-hat is the rank-normalised split R-hat with each walker taken as a chain. The
 walkers of an ensemble are *not* independent chains (every move uses the other
@@ -62,7 +64,7 @@ import numpy as np
 
 from bayesbeam._util import progress_bar, stderr_is_live
 from bayesbeam.stats.checkpoint import CheckpointBackend, SamplingError, open_checkpoint
-from bayesbeam.stats.convergence import Check, autocorr_time, check_convergence, failed_criteria
+from bayesbeam.stats.convergence import Check, check_convergence, failed_criteria, kept_tau
 from bayesbeam.stats.priors import PriorSet
 
 __all__ = [
@@ -100,8 +102,8 @@ class Chain:
     names : tuple of str
         Parameter names, length ``ndim``.
     tau : numpy.ndarray, shape (ndim,)
-        Integrated autocorrelation time in steps (unthinned), from the full chain
-        at the final check; ``inf`` where it could not be estimated.
+        Integrated autocorrelation time in steps (unthinned), of the chain after
+        burn-in at the final check; ``inf`` where it could not be estimated.
     ess : numpy.ndarray, shape (ndim,)
         Bulk effective sample size after burn-in (ArviZ, walkers as chains).
     rhat : numpy.ndarray, shape (ndim,)
@@ -576,7 +578,7 @@ def run_emcee(
     check_every : int, default 100
         Steps between convergence checks.
     n_tau : float, default 50
-        Required chain length in autocorrelation times.
+        Required length of the chain after burn-in, in autocorrelation times.
     tau_rtol : float, default 0.02
         Required relative stability of τ between consecutive checks. (1 % made
         a 3-parameter Gaussian run ~30 % longer than needed for ESS >= 1000:
@@ -719,7 +721,8 @@ def run_emcee(
                 # Rebuild the decision history: τ at the last regular check before `it`,
                 # and a check at `it` itself if the interrupted run was due one there.
                 last = ((it - 1) // check_every) * check_every
-                prev_tau = autocorr_time(backend.get_chain()[:last], n_tau)[0] if last else None
+                prev_tau = (kept_tau(backend.get_chain()[:last], n_tau, burn_in_taus)[0]
+                            if last else None)
                 if it % check_every == 0 or it >= max_steps:
                     check = evaluate(it, prev_tau)
                     prev_tau = check.tau
