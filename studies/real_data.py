@@ -64,7 +64,7 @@ SIZES = {
     "stiffness_gradient": ("EI gradient", 1.0, ""),
     "root_spring": ("root spring", 1.0, "N m/rad"),
     "drag": ("drag", 1.0, "kg/m²"),
-    "friction": ("friction", 1.0, "N/m"),
+    "friction": ("friction", 1.0, "N"),
     "f1_slope": ("f1 shift", 1.0, "mHz/mm"),  # Hz per m of tip amplitude = mHz per mm
     "rho": ("AR(1) ρ", 1.0, ""),
 }
