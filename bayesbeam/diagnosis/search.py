@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam.inference.coordinates import PREBURN_STEPS, SamplerCoordinates, sample_in_coordinates
-from bayesbeam.inference.optimum import local_map, map_bounds, newton_polish
+from bayesbeam.inference.optimum import best_map, map_bounds, newton_polish
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import Model
 from bayesbeam.trials.trial import Trial
@@ -116,14 +116,12 @@ class _Engine:
         U = pb.priors.to_u(X)
         if st.u is not None:
             U = np.vstack([st.u[None], U])
-        for u0 in U:
-            # Scaled L-BFGS-B passes in the sampler's coordinates (optimum.local_map): on
-            # Al 50 cm #0 the unscaled search in u stopped 190-410 nats short.
-            u, v = local_map(pb, u0)
-            if v > st.lp:
-                st.u, st.lp = u, v
-        if st.u is not None and np.isfinite(st.lp):
-            st.u, st.lp = newton_polish(pb.log_prob, st.u, st.lp, map_bounds(pb))
+        # The search of `bayesbeam fit` (optimum.best_map: scaled L-BFGS-B passes in the
+        # sampler's coordinates from each start, the best Newton-polished); the current
+        # MAP is among the starts, and local_map never returns below its start.
+        u, v = best_map(pb, U)
+        if u is not None and v > st.lp:
+            st.u, st.lp = u, v
         if st.u is None or not np.isfinite(st.lp):
             raise DiagnoseError(f"no start of model {pb.model.name!r} has a finite posterior "
                                 "density; check the trial's units and the priors")

@@ -33,7 +33,7 @@ from bayesbeam.inference.coordinates import (
     sample_in_coordinates,
 )
 from bayesbeam.inference.mesh import converge_mesh
-from bayesbeam.inference.optimum import diagonal_sd, local_map, map_bounds, newton_polish
+from bayesbeam.inference.optimum import best_map, diagonal_sd, local_map
 from bayesbeam.inference.problem import Problem, amplitude_names, record_f1
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
@@ -423,17 +423,13 @@ def find_map(
     X = np.vstack([_start_points(problem, rng, n_starts), _physics_rows(problem)])
     X = scan_E(problem, X)
     U = problem.priors.to_u(X)
-    best_u, best_v = None, -np.inf
-    for u0 in U:
-        u, v = local_map(problem, u0, maxiter=maxiter)
-        if v > best_v:
-            best_u, best_v = u, v
-    if best_u is None or not np.isfinite(best_v):
+    best_u, best_v = best_map(problem, U, maxiter=maxiter)
+    if best_u is None:
         raise FitError(
             "no starting point with a finite posterior density was found; check the trial's "
             "units and the priors (bayesbeam fit --priors)"
         )
-    return newton_polish(problem.log_prob, best_u, best_v, map_bounds(problem))
+    return best_u, best_v
 
 
 _SAMPLER_OPTIONS = ("n_tau", "tau_rtol", "check_every", "burn_in_taus", "thin",

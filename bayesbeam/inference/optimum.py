@@ -30,7 +30,8 @@ from bayesbeam.inference.coordinates import Coordinates, SamplerCoordinates
 from bayesbeam.inference.problem import Problem
 from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
 
-__all__ = ["curvature_scales", "diagonal_sd", "local_map", "map_bounds", "newton_polish"]
+__all__ = ["best_map", "curvature_scales", "diagonal_sd", "local_map", "map_bounds",
+           "newton_polish"]
 
 #: L-BFGS-B passes at most per start; a pass that gains under :data:`PASS_GAIN` nats ends
 #: the search. On Al 50 cm #0 the second and third passes gained several nats each.
@@ -197,6 +198,35 @@ def local_map(problem: Any, u0: np.ndarray, *, maxiter: int = 300,
             break
     u = x if coords is None else np.asarray(coords.to_u(x), dtype=float)
     return u, v
+
+
+def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300) -> tuple[np.ndarray | None,
+                                                                          float]:
+    """:func:`local_map` from every row of ``U``; the best result, Newton-polished.
+
+    Parameters
+    ----------
+    problem : Problem
+    U : ndarray, shape (S, ndim)
+        Starts in the sampling space.
+    maxiter : int
+        L-BFGS-B iterations per pass.
+
+    Returns
+    -------
+    u : ndarray, shape (ndim,), or None
+        None when no start reached a finite density.
+    log_prob : float
+        ``-inf`` with ``u`` None.
+    """
+    best_u, best_v = None, -np.inf
+    for u0 in U:
+        u, v = local_map(problem, u0, maxiter=maxiter)
+        if v > best_v:
+            best_u, best_v = u, v
+    if best_u is None or not np.isfinite(best_v):
+        return None, -np.inf
+    return newton_polish(problem.log_prob, best_u, best_v, map_bounds(problem))
 
 
 def newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,
