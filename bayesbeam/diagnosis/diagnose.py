@@ -466,11 +466,21 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
         progress_note(bar, f"{st.problem.model.name} done")
         bar.update(1)
 
+    pairs = [(st, eng.starts(st, cur.x)) for _, st in screened]
+    for st, _ in pairs:
+        eng.embed(st, cur.x)
     try:
-        eng.optimise_many([(st, eng.starts(st, cur.x)) for _, st in screened], executor,
-                          on_done=screened_one)
+        eng.optimise_many(pairs, executor, on_done=screened_one)
     finally:
         bar.close()
+    for cause, _ in screened:
+        if scores[cause]["gain"] < -SCREEN_THRESHOLD:
+            # The search started from the current MAP (Engine.embed): a loss means that
+            # no value in the prior's support nests the current model.
+            scores[cause]["note"] = (
+                f"screened {-scores[cause]['gain']:.1f} nats below the current model: even its "
+                "most neutral prior value changes the prediction (e.g. the smallest mass "
+                "the prior allows shifts the frequencies) and no start did better")
     passing = [c for c, s in scores.items() if s["gain"] > SCREEN_THRESHOLD]
     # A better optimum of the current model found from a candidate's MAP replaces its MAP.
     if passing:

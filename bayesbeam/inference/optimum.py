@@ -37,6 +37,8 @@ __all__ = ["best_map", "curvature_scales", "diagonal_sd", "local_map", "map_boun
 #: the search. On Al 50 cm #0 the second and third passes gained several nats each.
 MAX_PASSES = 4
 PASS_GAIN = 1e-3
+#: :func:`best_map` Newton-polishes this many of its best distinct local results.
+POLISHED = 3
 
 #: Levenberg-Marquardt shifts of :func:`newton_polish`, tried in turn until a step gains
 #: (the Hessian in conditional-sd units has unit diagonal, so 1 is its own scale).
@@ -202,7 +204,7 @@ def local_map(problem: Any, u0: np.ndarray, *, maxiter: int = 300,
 
 def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300) -> tuple[np.ndarray | None,
                                                                           float]:
-    """:func:`local_map` from every row of ``U``; the best result, Newton-polished.
+    """:func:`local_map` from every row of ``U``; the best :data:`POLISHED`, Newton-polished.
 
     Parameters
     ----------
@@ -219,24 +221,41 @@ def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300) -> tuple[np.nda
     log_prob : float
         ``-inf`` with ``u`` None.
     """
+    found = [local_map(problem, u0, maxiter=maxiter) for u0 in U]
+    found = sorted((f for f in found if np.isfinite(f[1])), key=lambda f: -f[1])
+    if not found:
+        return None, -np.inf
+    # Polish the best POLISHED distinct results, not the best alone: where L-BFGS-B
+    # stalls far from the mode, which start stalls highest says little about which
+    # polishes highest (Al 30 cm #0, AR(1) screen: the best L-BFGS-B result polished to
+    # +4477 nats, the second best to +13700).
     best_u, best_v = None, -np.inf
-    for u0 in U:
-        u, v = local_map(problem, u0, maxiter=maxiter)
+    kept: list[np.ndarray] = []
+    for u, v in found:
+        if len(kept) == POLISHED:
+            break
+        if any(np.allclose(u, k, rtol=0.0, atol=1e-8) for k in kept):
+            continue
+        kept.append(u)
+        u, v = newton_polish(problem.log_prob, u, v, map_bounds(problem))
         if v > best_v:
             best_u, best_v = u, v
-    if best_u is None or not np.isfinite(best_v):
-        return None, -np.inf
-    return newton_polish(problem.log_prob, best_u, best_v, map_bounds(problem))
+    return best_u, best_v
 
 
 def newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,
                   bounds: Sequence[tuple[float | None, float | None]],
-                  iters: int = 6) -> tuple[np.ndarray, float]:
+                  iters: int = 40) -> tuple[np.ndarray, float]:
     """Damped Newton steps with a finite-difference Hessian from a near-optimal point.
 
     L-BFGS-B crawls along the narrow curved ridges of these posteriors (curvatures
-    spanning 1e3-1e10 in u) and can stop a few nats short; two or three Newton steps
-    with steps of 0.2 conditional sd finish the job. Each step is one vectorised call.
+    spanning 1e3-1e10 in u) and can stop short; Newton steps with steps of 0.2
+    conditional sd finish the job. Each step is one vectorised call. Where L-BFGS-B
+    stalls far from the mode (its line search fails on the slow flow's not quite
+    smooth log density: Al 30 cm #0 with drag, AR(1) noise and a moving f1 stopped
+    3336 nats short after two iterations a pass), the steps keep climbing: 6 steps gained
+    2776 nats there, 40 reached the mode (+3337, 16 s); steps stop as soon as one does
+    not gain.
 
     Parameters
     ----------

@@ -395,6 +395,58 @@ def test_the_chains_best_point_becomes_the_map():
     assert np.array_equal(st.u, u_before) and st.lp == lp_before
 
 
+@pytest.mark.parametrize("cause", ["added_mass", "drag", "stiffness_gradient"])
+def test_a_candidate_that_nests_the_current_model_screens_from_its_map(cause):
+    # The candidate's search starts from the current MAP with its new parameters at
+    # their neutral values, as it is (no E scan, which re-profiles the amplitudes): on a
+    # whole record the scanned copy lost 58-225 nats and the search did not climb back.
+    from bayesbeam.diagnosis.search import _Engine
+    from bayesbeam.physics.models import parse_model
+
+    trial, initial = make_trial("viscous+kv", BASE, "displacement", duration=0.5)
+    eng = _Engine(trial, seed=0, n_elements=N_EL, initial=initial, priors=None,
+                  sampler={}, notes=[], log=lambda s: None)
+    cur = eng.state(parse_model("viscous+kv"))
+    eng.optimise(cur, eng.starts(cur, None))
+    st = eng.state(parse_model(f"viscous+kv+{cause}"))
+    eng.embed(st, cur.x)
+    # A point mass at the clamp and a zero gradient change nothing: the same likelihood
+    # to round-off (1e-9 relative of |log L|). Drag at its prior's lower end (ζ1 =
+    # 1e-7) is not exactly zero and runs through the slow flow.
+    tol = 1e-3 if cause == "drag" else 1e-9 * abs(cur.ll)
+    assert st.ll == pytest.approx(cur.ll, abs=tol)
+    eng.optimise(st, eng.starts(st, cur.x))
+    assert st.ll >= cur.ll - tol
+
+
+def test_ar1_start_is_the_noise_of_the_current_residual():
+    # The AR(1) candidate's start carries the lag-1 correlation and RMS of the current
+    # model's residual: from rho at its neutral 0.01 the search ran rho onto its bound
+    # on a whole record and stopped 10 300 nats short.
+    from bayesbeam.diagnosis.search import _Engine
+    from bayesbeam.physics.models import parse_model
+
+    rho, duration, fs = 0.8, 2.0, 512.0
+    trial, initial = make_trial("viscous+kv", BASE, "displacement", rho=rho,
+                                duration=duration, fs=fs)
+    eng = _Engine(trial, seed=0, n_elements=N_EL, initial=initial, priors=None,
+                  sampler={}, notes=[], log=lambda s: None)
+    cur = eng.state(parse_model("viscous+kv"))
+    eng.optimise(cur, eng.starts(cur, None))
+    st = eng.state(parse_model("viscous+kv+ar1_noise"))
+    names = list(st.problem.names)
+    rows = eng.starts(st, cur.x)
+    starts_rho = rows[:, names.index("rho")]
+    # The generating rho within 4 standard errors of a lag-1 correlation estimate,
+    # sqrt((1 - rho^2) / T) (Bartlett), T = 1024 samples; the residual is the noise
+    # up to the fitted mean's few degrees of freedom.
+    se = np.sqrt((1 - rho**2) / (duration * fs))
+    assert np.any(np.abs(starts_rho - rho) < 4 * se), starts_rho
+    i = int(np.argmin(np.abs(starts_rho - rho)))
+    r = trial.values - st.problem.predict(rows[i : i + 1]).y[0]
+    assert rows[i, names.index("sigma")] == pytest.approx(np.sqrt(np.mean(r**2)), rel=1e-12)
+
+
 def test_softening_signature_and_starts():
     # The data's f1 falls with amplitude beyond the linear model's (signature), and the
     # starts of the extended model put f1_slope at the measured slope.
