@@ -22,7 +22,7 @@ Then the repeats of one free length are compared: for every size present in two
 repeats, the difference of their posterior means in units of its combined sd.
 
 Resumable: a record whose ``OUT/LABEL/diagnosis.json`` exists is read, not run again,
-so the study can be spread over several sittings (a whole record takes 15–40 min on
+so the study can be spread over several sittings (a whole record takes 10–50 min on
 2 cores). Writes ``OUT/real_data.jsonl`` (one row per record), ``OUT/real_data.md`` and,
 per record, the command's output folder ``OUT/LABEL/`` and its progress log
 ``OUT/LABEL.log``.
