@@ -123,7 +123,8 @@ class _Engine:
         X = np.vstack([X, fitmod.scan_E(pb, X)])
         U = pb.priors.to_u(X)
         if st.u is not None:
-            U = np.vstack([st.u[None], U])
+            # The current MAP (Engine.embed) is usually the first row itself: once.
+            U = np.array([st.u] + [u for u in U if not np.array_equal(u, st.u)])
         # The search of `bayesbeam fit` (optimum.best_map: scaled L-BFGS-B passes in the
         # sampler's coordinates from each start, the best Newton-polished); the current
         # MAP is among the starts, and local_map never returns below its start.
@@ -162,8 +163,7 @@ class _Engine:
         from bayesbeam.inference.fit import clip_to_prior
 
         pb = st.problem
-        x = np.array([[warm.get(n, neutral_value(pb, n)) for n in pb.names]], dtype=float)
-        u = pb.priors.to_u(clip_to_prior(pb, x))
+        u = pb.priors.to_u(clip_to_prior(pb, np.array([_warm_row(pb, warm)])))
         lp = float(pb.log_prob(u)[0])
         if np.isfinite(lp) and lp > st.lp:
             st.u, st.lp = u[0], lp
@@ -176,7 +176,7 @@ class _Engine:
         neutral = {n: neutral_value(pb, n) for n in names}
         rows = []
         if warm:
-            rows.append([warm.get(n, neutral[n]) for n in names])
+            rows.append(_warm_row(pb, warm))
         else:
             # No MAP yet (the baseline): also fit()'s first start, the record's damping
             # shared evenly among the laws (deterministic). The decay-rate starts alone can
@@ -310,6 +310,11 @@ class _Engine:
 
             st.sig = compute_signatures(st.problem, self.confirm(st).result, seed=self.seed)
         return st.sig
+
+
+def _warm_row(pb: Any, warm: Mapping[str, float]) -> list[float]:
+    """Return the current MAP ``warm`` with ``pb``'s new parameters neutral (physical)."""
+    return [warm[n] if n in warm else neutral_value(pb, n) for n in pb.names]
 
 
 def _worker_state(job: Mapping[str, Any]) -> tuple[_Engine, _State]:

@@ -19,6 +19,7 @@ import numpy as np
 import scipy.optimize as sopt
 
 from bayesbeam.inference.problem import record_f1
+from bayesbeam.stats.whiteness import autocorrelation
 from bayesbeam.trials.modal_id import (
     damped_sinusoids,
     decay_rate_vs_amplitude,
@@ -309,7 +310,7 @@ def _noise_start(pb: Any, v: Mapping[str, float]) -> list[float]:
     if res.valid[0]:
         r = pb.data - res.y[0]
         lo, hi = pb.priors["rho"].bounds
-        lag1 = float(np.dot(r[1:], r[:-1]) / max(float(np.dot(r, r)), 1e-300))
+        lag1 = float(autocorrelation(r, 1)[1])
         w["rho"] = float(np.clip(lag1, lo + 1e-3 * (hi - lo), hi - 1e-3 * (hi - lo)))
         w["sigma"] = float(np.sqrt(np.mean(r**2)))
     return [w[n] for n in pb.names]
