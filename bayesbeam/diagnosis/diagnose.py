@@ -52,7 +52,11 @@ Procedure of one round (current model M)
    Laplace covariance, differential-evolution moves), then bridge-sampling evidence
    with its Monte-Carlo error and PSIS-LOO (:func:`bayesbeam.comparison.scoring.evaluate`) for M
    and for the ``confirm_top`` best-screened candidates (plus any other within
-   ``SCREEN_TIE`` = 3 nats of the best screen value).
+   ``SCREEN_TIE`` = 3 nats of the best screen value), leaving out those screened more
+   than ``CONFIRM_WINDOW`` = 50 nats behind the best (:func:`to_confirm`): such a
+   candidate could beat the best only if the two Occam factors differed by more than
+   that, and they differed by at most 18 nats (screen minus Δ log Z) over the whole
+   records of the eleven-record study. It is screened again in the next round.
 3. **Decide**. ``Δ = log Z(M+X) - log Z(M)`` with ``err = sqrt(err_M² + err_X²)``.
    X is *significant* when ``Δ - 2 err > SIGNIFICANCE`` (3 nats: a Bayes factor above
    20, "strong" on Kass & Raftery's 1995 scale). Two candidates count as *separated*
@@ -132,6 +136,7 @@ from bayesbeam.trials.trial import Trial
 __all__ = [
     "CATALOGUE",
     "SCREEN_THRESHOLD",
+    "CONFIRM_WINDOW",
     "SIGNIFICANCE",
     "TIE",
     "diagnose",
@@ -149,6 +154,8 @@ SIGNIFICANCE = 3.0
 SCREEN_THRESHOLD = 2.0
 #: Candidates within this many nats of the best screen value are confirmed too.
 SCREEN_TIE = 3.0
+#: Candidates screened more than this many nats behind the best are not confirmed.
+CONFIRM_WINDOW = 50.0
 #: Candidates are separated only when one's evidence beats the other's by more than
 #: max(2 err, TIE) nats: the same strength (Bayes factor > 20) that significance needs.
 TIE = 3.0
@@ -404,10 +411,40 @@ def diagnose(
         named_causes=tuple(r.cause for r in rounds), rounds=tuple(rounds),
         final_check=final_check,
         thresholds={"significance": SIGNIFICANCE, "screen": SCREEN_THRESHOLD,
-                    "screen_tie": SCREEN_TIE, "tie": TIE},
+                    "screen_tie": SCREEN_TIE, "confirm_window": CONFIRM_WINDOW, "tie": TIE},
         signatures_before=sig_before, signatures_after=sig_after, fits=fits,
         notes=tuple(dict.fromkeys(notes)), seconds=time.perf_counter() - t_start,
     )
+
+
+def to_confirm(gains: Mapping[str, float], confirm_top: int) -> list[str]:
+    """Return the screened candidates to sample, best screen first.
+
+    Parameters
+    ----------
+    gains : mapping of str to float
+        Each passing candidate's screen gain Δχ²/2 (nats).
+    confirm_top : int
+        How many of the best-screened candidates to sample at most, besides those
+        within ``SCREEN_TIE`` of the best.
+
+    Returns
+    -------
+    list of str
+        The ``confirm_top`` best and any within ``SCREEN_TIE`` of the best, all within
+        ``CONFIRM_WINDOW`` of it. ``Δ log Z = Δχ²/2 - (o_X - o_M)`` with ``o`` the log
+        Occam factor (``max log L - log Z``), so a candidate ``D`` nats behind the best
+        beats it only if their Occam factors differ by more than ``D`` (or its search
+        stopped ``D`` short); sampling it costs as much as the best's confirmation
+        (minutes on a whole record, most of a round's time).
+    """
+    ranked = sorted(gains, key=lambda c: -gains[c])
+    if not ranked:
+        return []
+    best = gains[ranked[0]]
+    return [c for i, c in enumerate(ranked)
+            if (i < confirm_top or gains[c] > best - SCREEN_TIE)
+            and gains[c] >= best - CONFIRM_WINDOW]
 
 
 def _chains_reached(st: _State) -> bool:
@@ -504,11 +541,15 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
             eng.laplace(st)
             s["laplace"] = st.laplace - cur.laplace
     # 2. Confirm.
-    ranked = sorted(passing, key=lambda c: -scores[c]["gain"])
-    if ranked:
-        best_gain = scores[ranked[0]]["gain"]
-        chosen = [c for i, c in enumerate(ranked)
-                  if i < confirm_top or scores[c]["gain"] > best_gain - SCREEN_TIE]
+    chosen = to_confirm({c: scores[c]["gain"] for c in passing}, confirm_top)
+    if chosen:
+        best_gain = scores[chosen[0]]["gain"]
+        for c in passing:
+            if c not in chosen:
+                scores[c]["note"] = (
+                    f"not sampled: screened {best_gain - scores[c]['gain']:.1f} nats behind "
+                    f"{chosen[0]} (beyond the {confirm_top} best or the "
+                    f"{CONFIRM_WINDOW:g}-nat window)")
         # The sampling runs are independent: through the executor (seeds in this order).
         sampled = [cur] + [eng.states[scores[c]["model"]] for c in chosen]
         bar = progress_bar(sum(st.score is None for st in sampled),

@@ -21,10 +21,10 @@ import scipy.optimize as sopt
 from bayesbeam.inference.problem import record_f1
 from bayesbeam.stats.whiteness import autocorrelation
 from bayesbeam.trials.modal_id import (
-    damped_sinusoids,
     decay_rate_vs_amplitude,
     periodogram,
     spectral_peak,
+    windowed_sinusoids,
 )
 from bayesbeam.trials.trial import Trial
 
@@ -60,7 +60,7 @@ def data_features(trial: Trial) -> dict[str, float]:
         if g is None or g > 0.8 * nyq:
             break
         guesses.append(float(g))
-    est = _windowed_estimates(t, y, guesses)
+    est, _ = windowed_sinusoids(t, y, guesses)
     feats: dict[str, float] = {"f1": f1}
     for k, e in enumerate(est[:2], start=1):
         if e is not None:
@@ -81,46 +81,6 @@ def data_features(trial: Trial) -> dict[str, float]:
             feats.update(excess=dva.excess, excess_se=dva.excess_se, rate0=dva.rate0)
         feats.update(_frequency_slope(trial, est[0].frequency))
     return feats
-
-
-def _windowed_estimates(t: np.ndarray, y: np.ndarray, guesses: Sequence[float]) -> list[Any]:
-    """Damped-sinusoid estimates of each mode from the window that measures it best.
-
-    A higher mode of a whole record lives for a fraction of it (mode 2 of the 40 cm
-    aluminium strip decays at 7/s against 0.3/s for mode 1), so a fit of the whole
-    record drowns it: its amplitude falls below 5 standard errors (the residual's
-    lag-1 correlation inflates them) and it is reported as not measurable, which left
-    every structural start without f2. Windows from the first sample, the record
-    halved until a window holds fewer than 8 periods of mode 1, are each fitted with
-    all modes (:func:`~bayesbeam.trials.modal_id.damped_sinusoids`); each higher mode
-    keeps the estimate with the smallest frequency standard error, mode 1 the whole
-    record's (its mean frequency and decay rate over the record).
-
-    Parameters
-    ----------
-    t, y : ndarray, shape (T,)
-        Record (s, signal units).
-    guesses : sequence of float
-        Starting frequencies (Hz), mode 1 first.
-
-    Returns
-    -------
-    list of ModalEstimate or None
-        One entry per guess; None where no window measures the mode.
-    """
-    span = float(t[-1] - t[0])
-    best: list[Any] = [None] * len(guesses)
-    dur = span
-    while True:
-        m = t - t[0] <= dur * (1 + 1e-12)
-        for k, e in enumerate(damped_sinusoids(t[m], y[m], guesses)):
-            if k == 0 and dur < span:
-                continue  # mode 1 from the whole record, as its decay rate is meant
-            if e is not None and (best[k] is None or e.frequency_se < best[k].frequency_se):
-                best[k] = e
-        dur *= 0.5
-        if dur * guesses[0] < 8 or np.count_nonzero(t - t[0] <= dur) < 16 * len(guesses):
-            return best
 
 
 def physics_starts(pb: Any, feats: Mapping[str, float], warm: Mapping[str, float],

@@ -27,10 +27,25 @@ The choices
 3. **Modes and rate.** Mode 1 is the largest spectral peak within a factor 2 of the
    beam's nominal first frequency; mode k is sought at ``f1 r_k`` (``r_k`` the nominal
    beam's frequency ratios, which do not depend on E) within ±20 % and counts as seen
-   when the largest ordinate there of the analysis span's power spectrum (Hann window)
-   exceeds :data:`~bayesbeam.trials.noise.PEAK_FACTOR` times the median ordinate within
-   a factor 2 in frequency (the local floor: noise, leakage, the release's broadband
-   content). When the motion ends before :data:`NOISE_TAIL` of the span (a long record,
+   when the largest ordinate there of a power spectrum (Hann window) exceeds
+   :data:`~bayesbeam.trials.noise.PEAK_FACTOR` times the median ordinate within a
+   factor 2 in frequency (the local floor: noise, leakage, the release's broadband
+   content). The spectra are of the analysis span and of its first half, quarter, ...
+   (down to :data:`MODE_PERIODS` periods of the mode); the one where the peak stands
+   highest above its floor gives it (:func:`_mode_peak`), leaving out the ordinates
+   within 1 % (:data:`~bayesbeam.trials.residual_lines.HARMONIC_TOL`, or the Hann
+   window's main lobe ±2/T) of a harmonic ``n f1`` (``n >= 2``): a higher mode lives a
+   fraction of a whole record, while harmonics of f1 (from a nonlinearity of the
+   beam, its clamp, an attachment or the sensor) last as long as mode 1. They are
+   listed (:attr:`Preprocessing.harmonics`); on the aluminium records they cluster
+   around modes 2 and 3 (6-8 f1 and 13-17 f1 at 40 cm), where the resonances amplify
+   them. Over the 20 s of the 40 cm aluminium records the
+   largest peak near mode 2 (62 Hz, gone after ~1 s) was the line at 7 f1 = 66 Hz,
+   and near mode 3 the one at 15 f1 = 141 Hz (the fitted model's mode 3 is at 164
+   Hz); at 30 cm, 7 f1 = 114 Hz and 19 f1 = 310 Hz. A mode within 1 % of a harmonic
+   is not told from it by the spectrum (the fits find it from the model's
+   frequencies). When the motion ends before
+   :data:`NOISE_TAIL` of the span (a long record,
    mostly noise), the spectrum is that of the span up to the end of the motion. The analysis
    band is ``1.25 ×`` the highest seen mode that fits the sample budget
    (:data:`MAX_SAMPLES` over the analysis span) and the record's own band, the rate
@@ -82,6 +97,7 @@ import scipy.linalg as sla
 from bayesbeam.physics.fem import assemble
 from bayesbeam.trials.modal_id import periodogram
 from bayesbeam.trials.noise import PEAK_FACTOR, noise_floor
+from bayesbeam.trials.residual_lines import HARMONIC_TOL
 from bayesbeam.trials.trial import BANDWIDTH_PER_RATE, Trial, TrialError
 
 __all__ = [
@@ -116,6 +132,11 @@ MAX_GAP_STEPS = 4.0
 MAX_MODES = 8
 #: Search half-width around f1 r_k, relative.
 MODE_WINDOW = 0.2
+#: Highest harmonic of mode 1 looked for (the preprocessing's report).
+MAX_HARMONIC = 20
+#: Shortest spectrum a higher mode is sought in, in periods of the mode (its resolution
+#: 1/T is then 2 % of the mode's frequency, a tenth of the search window).
+MODE_PERIODS = 50.0
 #: The band edge above the highest kept mode.
 BAND_MARGIN = 1.25
 #: Analysis rate over analysis band: the anti-alias filter's transition band runs from
@@ -180,6 +201,11 @@ class Preprocessing:
         Bins of the (zero-padded) periodogram among which mode 1 was taken as the
         largest ordinate: sets the false-alarm threshold of the mode-1 line
         (:func:`bayesbeam.trials.checks.line_threshold`). 0: not recorded.
+    harmonics : tuple of tuple
+        Lines of the span's spectrum at harmonics of mode 1, ``(n, Hz, strength)`` for
+        ``n = 2 .. MAX_HARMONIC`` below the record's band whose peak within 1 % of
+        ``n f1`` exceeds ``PEAK_FACTOR`` times the floor (as for a mode): not bending
+        modes (a nonlinearity of the beam, its clamp, an attachment or the sensor).
     """
 
     start: float
@@ -206,6 +232,7 @@ class Preprocessing:
     given: tuple[str, ...]
     loader: tuple[str, ...]
     mode1_bins: int = 0
+    harmonics: tuple[tuple[int, float, float], ...] = ()
 
     def to_json_dict(self) -> dict[str, Any]:
         """Return the record as JSON-ready dict (the ``preprocessing`` key of the outputs)."""
@@ -213,6 +240,8 @@ class Preprocessing:
         for k in ("modes_seen", "mode_strength", "mode_numbers", "modes_dropped", "given",
                   "loader"):
             out[k] = list(out[k])
+        out["harmonics"] = [{"n": n, "frequency": f, "strength": r}
+                            for n, f, r in self.harmonics]
         out["units"] = "s for times, Hz for rate, band and frequencies"
         return out
 
@@ -244,6 +273,10 @@ class Preprocessing:
             f"initial condition {self.initial} ({self.initial_how})",
             f"offset: {self.offset} ({self.offset_how})",
         ]
+        if self.harmonics:
+            out.append("lines at harmonics of mode 1 (not bending modes: a nonlinearity of "
+                       "the beam, clamp, an attachment or the sensor): " + ", ".join(
+                           f"{n} f1 = {f:.1f} Hz" for n, f, _ in self.harmonics))
         if self.modes_dropped:
             out.append("modes above the band, left out of data and model: "
                        + ", ".join(f"{f:.1f} Hz" for f in self.modes_dropped))
@@ -287,10 +320,11 @@ def nominal_f1(trial: Trial) -> float | None:
 
 
 def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
-                ) -> tuple[float, list[float], list[float], list[int], int]:
+                ) -> tuple[float, list[float], list[float], list[int], int, tuple]:
     """Return f1, the modes seen (Hz), their peak/floor ratios, mode numbers, f1's bins.
 
-    The last is the count of periodogram bins searched for mode 1.
+    Then the count of periodogram bins searched for mode 1, and the lines at harmonics
+    of f1 (:attr:`Preprocessing.harmonics`).
     """
     f, amp = periodogram(t, y)
     power = amp**2
@@ -322,16 +356,65 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
         if fk * (1 - MODE_WINDOW) >= band:
             break
         win = (f > fk * (1 - MODE_WINDOW)) & (f < min(band, fk * (1 + MODE_WINDOW)))
-        local = (f > fk / 2) & (f < min(band, 2 * fk))
         if not np.any(win):
+            break
+        if k == 0:
+            local = (f > fk / 2) & (f < min(band, 2 * fk))
+            i = int(np.argmax(np.where(win, power, -np.inf)))
+            fp, ratio = float(f[i]), float(power[i] / np.median(power[local]))
+        else:
+            fp, ratio = _mode_peak(t, y, fk, band, f1)
+        if k == 0 or ratio > PEAK_FACTOR:
+            seen.append(fp)
+            strength.append(ratio)
+            numbers.append(k + 1)
+    harmonics = []
+    for n in range(2, MAX_HARMONIC + 1):
+        win = np.abs(f - n * f1) <= HARMONIC_TOL * n * f1
+        local = (f > n * f1 / 2) & (f < 2 * n * f1) & (f < band)
+        if n * f1 * (1 + HARMONIC_TOL) >= band or np.count_nonzero(local) < 8:
             break
         i = int(np.argmax(np.where(win, power, -np.inf)))
         ratio = float(power[i] / np.median(power[local]))
-        if k == 0 or ratio > PEAK_FACTOR:
-            seen.append(float(f[i]))
-            strength.append(ratio)
-            numbers.append(k + 1)
-    return f1, seen, strength, numbers, int(np.count_nonzero(sel))
+        if ratio > PEAK_FACTOR:
+            harmonics.append((n, float(f[i]), ratio))
+    return f1, seen, strength, numbers, int(np.count_nonzero(sel)), tuple(harmonics)
+
+
+def _mode_peak(t: np.ndarray, y: np.ndarray, fk: float, band: float, f1: float
+               ) -> tuple[float, float]:
+    """Return the peak (Hz) within ±MODE_WINDOW of ``fk`` and its height over the floor.
+
+    Spectra of the span and of its first half, quarter, ... down to
+    :data:`MODE_PERIODS` periods of ``fk``; the one where the peak stands highest
+    above its floor (the median ordinate within a factor 2 in frequency) gives it. A
+    decaying mode stands highest in a spectrum about as long as its decay time.
+    Ordinates within ``HARMONIC_TOL`` of a harmonic ``n f1`` (n >= 2) are neither
+    candidates nor floor: those lines last as long as mode 1 and outgrow a higher
+    mode's peak in every spectrum long enough to resolve it.
+    """
+    best = (math.nan, -math.inf)
+    dur = float(t[-1] - t[0])
+    while True:
+        m = t - t[0] <= dur * (1 + 1e-12)
+        f, amp = periodogram(t[m], y[m])
+        power = amp**2
+        win = (f > fk * (1 - MODE_WINDOW)) & (f < min(band, fk * (1 + MODE_WINDOW)))
+        local = (f > fk / 2) & (f < min(band, 2 * fk))
+        n = np.rint(f / f1)
+        # Within 1 % of n f1, or within the Hann window's main lobe (±2/T) of it.
+        harmonic = (n >= 2) & (np.abs(f - n * f1) <= np.maximum(HARMONIC_TOL * n * f1,
+                                                                2.0 / dur))
+        win &= ~harmonic
+        local &= ~harmonic
+        if np.any(win) and np.count_nonzero(local) >= 8:
+            i = int(np.argmax(np.where(win, power, -np.inf)))
+            ratio = float(power[i] / np.median(power[local]))
+            if ratio > best[1]:
+                best = (float(f[i]), ratio)
+        dur *= 0.5
+        if dur * fk < MODE_PERIODS or np.count_nonzero(t - t[0] <= dur) < 64:
+            return best
 
 
 def _noise_sd(t: np.ndarray, y: np.ndarray, f1: float) -> tuple[float, float]:
@@ -455,7 +538,7 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
         )
     # A record that is mostly noise after the motion: its modes are sought on the motion.
     search = span if end is not None else _motion_span(trial, t, y, span)
-    f1, seen, strength, numbers, n_bins = _seen_modes(trial, t[search], y[search],
+    f1, seen, strength, numbers, n_bins, harmonics = _seen_modes(trial, t[search], y[search],
                                                       native_band)
     noise_sd, block = _noise_sd(t[span], y[span], f1)
     if end is not None:
@@ -529,7 +612,7 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
         n_samples_in=int(t.size),
         n_samples=n_out, max_samples=int(budget), given=fixed,
         loader=tuple(str(s) for s in trial.source.get("processing", [])),
-        mode1_bins=int(n_bins),
+        mode1_bins=int(n_bins), harmonics=harmonics,
     )
 
 

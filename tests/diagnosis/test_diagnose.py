@@ -319,6 +319,23 @@ def test_bad_input():
         diagnose(trial, "viscous", max_rounds=0)
 
 
+def test_candidates_far_behind_the_best_screen_are_not_sampled():
+    from bayesbeam.diagnosis.diagnose import CONFIRM_WINDOW, SCREEN_TIE, to_confirm
+
+    # Round 3 of Al 40 cm #1 (fixed screens): amplitude_stiffness 1174, drag 85,
+    # friction 76 nats. Their sampling took 1336 of the round's 2089 worker-seconds of
+    # sampling, and neither could beat amplitude_stiffness (Δ log Z 82 and 73 vs 1166).
+    assert to_confirm({"drag": 85.4, "friction": 75.7, "amplitude_stiffness": 1174.1},
+                      3) == ["amplitude_stiffness"]
+    # Within the window: the confirm_top best, and any tie with the best beyond them.
+    gains = {"a": 100.0, "b": 100.0 - CONFIRM_WINDOW + 1, "c": 100.0 - CONFIRM_WINDOW - 1}
+    assert to_confirm(gains, 3) == ["a", "b"]
+    assert to_confirm(gains, 1) == ["a"]
+    ties = {"a": 10.0, "b": 10.0 - SCREEN_TIE / 2, "c": 10.0 - SCREEN_TIE / 3}
+    assert to_confirm(ties, 1) == ["a", "c", "b"]
+    assert to_confirm({}, 3) == []
+
+
 def test_drag_and_friction_signatures_point_opposite_ways():
     from types import SimpleNamespace
 

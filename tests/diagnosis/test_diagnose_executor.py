@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from bayesbeam._util import one_blas_thread
-from bayesbeam.diagnosis.diagnose import diagnose
+from bayesbeam.diagnosis.diagnose import CONFIRM_WINDOW, diagnose
 from bayesbeam.inference.problem import BETA1
 from bayesbeam.physics.beam import Beam
 from bayesbeam.trials.synthetic import simulate_signal
@@ -89,10 +89,13 @@ def test_jobs_through_pickle_give_the_serial_diagnosis(serial, capsys):
     err = [ln for ln in capsys.readouterr().err.splitlines() if "100%" in ln]
     assert any(ln.startswith("diagnose round 1: MAP screen: 100%") and "3/3" in ln
                and "viscous+ar1_noise done" in ln for ln in err), err
-    assert any(ln.startswith("diagnose round 1: sampling: 100%") and "3/3" in ln
+    assert any(ln.startswith("diagnose round 1: sampling: 100%") and "2/2" in ln
                for ln in err), err
-    # One round: three screens, then the current model and the two best sampled.
-    assert ex.calls == ["_optimise_job"] * 3 + ["_confirm_job"] * 3
+    # One round: three screens, then the current model and the best sampled (the
+    # second best screened more than CONFIRM_WINDOW behind the offset: not sampled).
+    assert ex.calls == ["_optimise_job"] * 3 + ["_confirm_job"] * 2
+    gains = sorted(c.delta_chi2_half for c in d.rounds[0].candidates)
+    assert gains[-1] - gains[-2] > CONFIRM_WINDOW
     assert _record(d) == _record(d0)
     assert d.named_causes == d0.named_causes == ("sensor_offset",)
     # The same log, in the same order (times aside).
