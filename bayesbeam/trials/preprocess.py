@@ -30,7 +30,10 @@ The choices
    when the largest ordinate there of a power spectrum (Hann window) exceeds
    :data:`~bayesbeam.trials.noise.PEAK_FACTOR` times the median ordinate within a
    factor 2 in frequency (the local floor: noise, leakage, the release's broadband
-   content). The spectra are of the analysis span and of its first half, quarter, ...
+   content). The band is never below ``1.25 ×`` the nominal beam's mode 2 (with mode 1
+   alone the rate is so low that the anti-alias filter's reach around the gaps of
+   the aluminium stamps drops three quarters of the samples). The spectra are of the
+   analysis span and of its first half, quarter, ...
    (down to :data:`MODE_PERIODS` periods of the mode); the one where the peak stands
    highest above its floor gives it (:func:`_mode_peak`), leaving out the ordinates
    within 1 % (:data:`~bayesbeam.trials.residual_lines.HARMONIC_TOL`, or the Hann
@@ -565,13 +568,20 @@ def plan(trial: Trial, **given: Any) -> Preprocessing:
         band, rate_how = native_band, f"the record's own ({off})"
     else:
         kept = [f for f in seen if BAND_MARGIN * f <= cap] or [seen[0]]
+        # Never below mode 2 of the nominal beam: with mode 1 alone the rate falls to
+        # 5 f1 and the anti-alias filter, as long in time as the rate is low, drops
+        # every output it would take across one of the stamps' gaps: 410 of 1616
+        # samples left on Al 30 cm #0 (82 Hz), where mode 2 is not seen.
+        f2_nominal = f1 * float(_ratios(trial)[1])
+        if BAND_MARGIN * f2_nominal <= cap:
+            kept.append(f2_nominal)
         band = min(native_band, BAND_MARGIN * max(kept))
         rate = RATE_PER_BAND * band
         if trial.is_uniform:  # an integer decimation factor: no interpolation
             rate = 1.0 / (trial.dt * max(1, math.floor(1.0 / (rate * trial.dt))))
         rate_how = (f"{RATE_PER_BAND:g} x a band of {BAND_MARGIN:g} x the highest seen mode "
-                    f"within the budget of {budget} samples and the record's band "
-                    f"{native_band:.1f} Hz")
+                    f"(at least the nominal mode 2) within the budget of {budget} samples "
+                    f"and the record's band {native_band:.1f} Hz")
     if rate is not None and rate_how != "given" and rate >= 0.9 / median_step:
         rate, band = None, native_band
         rate_how += "; within 10 % of the native rate: raw stamps kept"

@@ -272,6 +272,24 @@ def test_harmonics_of_mode_1_are_not_taken_for_mode_2():
     assert any("6 f1" in ln and "7 f1" in ln for ln in pre.lines())
 
 
+def test_band_holds_the_nominal_mode_2_when_only_mode_1_is_seen():
+    # Mode 1 alone: the band is 1.25 x the nominal f2, not 1.25 x f1 (a rate of 5 f1,
+    # at which the anti-alias filter's reach around the stamps' gaps of a raw record
+    # dropped three quarters of the samples).
+    fs = 1000.0
+    trial0 = _long_decay(duration=1.0)
+    f1 = nominal_f1(trial0)
+    t = np.arange(round(20 * fs)) / fs
+    y = 24 * np.exp(-0.3 * t) * np.cos(2 * np.pi * f1 * t)
+    y += 0.05 * np.random.default_rng(12).standard_normal(t.size)
+    trial = Trial(times=t, values=y, quantity="acceleration", beam=trial0.beam, name="one")
+    pre = plan(trial, start=0.0)
+    assert len(pre.modes_seen) == 1
+    f2 = f1 * float(_ratios(trial)[1])
+    assert pre.band == pytest.approx(1.25 * f2, rel=1e-3)
+    assert pre.initial == "modes:2"
+
+
 def test_record_taken_as_given_beyond_the_budget_is_refused():
     trial = _long_decay(duration=20.0, initial={"tip_deflection": 5e-3})
     n = trial.times.size
