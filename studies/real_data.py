@@ -112,9 +112,20 @@ def row(rec: Any, record: dict[str, Any], seconds: float | None) -> dict[str, An
                   for r in record.get("rounds", [])],
         "sizes": sizes(record, length),
         "notes": len(record.get("notes", [])),
+        **_chains(record),
         "seconds": seconds,
         "version": record.get("provenance", {}).get("versions", {}).get("bayesbeam"),
     }
+
+
+def _chains(record: dict[str, Any]) -> dict[str, list[str]]:
+    """Return the models sampled and those whose emcee run did not converge (notes)."""
+    sampled = {record.get("baseline")} | {
+        c["model"] for r in record.get("rounds", []) for c in r.get("candidates", [])
+        if c.get("confirmed")}
+    bad = {n.split(": ", 1)[0] for n in record.get("notes", [])
+           if "emcee did not converge" in n}
+    return {"sampled": sorted(m for m in sampled if m), "unconverged": sorted(bad)}
 
 
 def _length(rec: Any) -> float:
@@ -147,8 +158,8 @@ def markdown(rows: list[dict[str, Any]], pairs: list[dict[str, Any]]) -> str:
     """Return the study's tables (Markdown)."""
     lines = ["# Whole-record diagnosis of the public measured data", "",
              "| record | samples | named causes: Δ log Z ± err; Δ ELPD ± se | RMS m/s² | "
-             "final sizes (mean ± sd) | notes | time |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+             "final sizes (mean ± sd) | chains unconverged | notes | time |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         named = "; ".join(
             f"`{n['cause']}` {_f(n['delta_log_evidence'])} ± {_f(n['delta_log_evidence_err'])}"
@@ -160,8 +171,10 @@ def markdown(rows: list[dict[str, Any]], pairs: list[dict[str, Any]]) -> str:
         sz = ", ".join(f"{SIZES[k][0]} {_f(m, 4)} ± {_f(s, 2)} {SIZES[k][2]}".rstrip()
                        for k, (m, s) in r["sizes"].items())
         t = "" if r["seconds"] is None else f"{r['seconds'] / 60:.1f} min"
+        chains = (f"{len(r['unconverged'])} of {len(r['sampled'])}" if "sampled" in r
+                  else "–")
         lines.append(f"| {r['record']} | {r['samples']} | {named} | {rms} | {sz} | "
-                     f"{r['notes']} | {t} |")
+                     f"{chains} | {r['notes']} | {t} |")
     if pairs:
         lines += ["", "Repeats of one length: difference of the posterior means in units "
                   "of the combined sd (|z| > 3: the repeats disagree beyond their "

@@ -651,6 +651,9 @@ def test_real_data_study_small(tmp_path, real_data_root):
     assert named["cause"] in {"added_mass", "ar1_noise"}
     assert named["delta_log_evidence"] > 3 + 2 * named["delta_log_evidence_err"]
     assert 40 < row["sizes"]["E"][0] < 90  # GPa (aluminium: 69)
+    # Every sampled model is counted, and an unconverged one is said to be.
+    assert row["baseline"] in row["sampled"] and set(row["unconverged"]) <= set(row["sampled"])
+    assert "chains unconverged" in out["markdown"]
     assert all(p.is_file() for p in out["paths"])
     # Resumed: the record's output is read, not run again (same row, at once).
     again = _study("real_data").main(small=True, outdir=tmp_path, progress=False)
