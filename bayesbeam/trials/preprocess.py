@@ -30,10 +30,7 @@ The choices
    when the largest ordinate there of a power spectrum (Hann window) exceeds
    :data:`~bayesbeam.trials.noise.PEAK_FACTOR` times the median ordinate within a
    factor 2 in frequency (the local floor: noise, leakage, the release's broadband
-   content). The band is never below ``1.25 ×`` the nominal beam's mode 2 (with mode 1
-   alone the rate is so low that the anti-alias filter's reach around the gaps of
-   the aluminium stamps drops three quarters of the samples). The spectra are of the
-   analysis span and of its first half, quarter, ...
+   content). The spectra are of the analysis span and of its first half, quarter, ...
    (down to :data:`MODE_PERIODS` periods of the mode); the one where the peak stands
    highest above its floor gives it (:func:`_mode_peak`), leaving out the ordinates
    within 1 % (:data:`~bayesbeam.trials.residual_lines.HARMONIC_TOL`, or the Hann
@@ -51,7 +48,10 @@ The choices
    :data:`NOISE_TAIL` of the span (a long record,
    mostly noise), the spectrum is that of the span up to the end of the motion. The analysis
    band is ``1.25 ×`` the highest seen mode that fits the sample budget
-   (:data:`MAX_SAMPLES` over the analysis span) and the record's own band, the rate
+   (:data:`MAX_SAMPLES` over the analysis span) and the record's own band, and never
+   below ``1.25 ×`` the nominal beam's mode 2 (with mode 1 alone the rate is so low
+   that the anti-alias filter's reach around the gaps of the aluminium stamps drops
+   three quarters of the samples); the rate
    :data:`RATE_PER_BAND` (4) times the band (the anti-alias filter's pass band ends at
    the band, its stop band starts at the new Nyquist frequency). Modes above the band are
    removed from data (the anti-alias filter) and model (the sensor band) alike, so
