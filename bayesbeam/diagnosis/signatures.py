@@ -395,10 +395,11 @@ def compute_signatures(
         # on that same window (like with like): over a whole record a fast-decaying
         # mode 2 is not measurable (f2/f1 was missing on every whole aluminium record).
         ed, windows = windowed_sinusoids(t, data, fk, sk[: len(fk)])
-        em = []
-        for k, w in enumerate(windows):
+        fits: dict[float, list[Any]] = {}  # one fit per window, shared by its modes
+        for w in set(windows):
             m = t - t[0] <= w * (1 + 1e-12)
-            em.append(damped_sinusoids(t[m], pred[m], fk, sk[: len(fk)])[k])
+            fits[w] = damped_sinusoids(t[m], pred[m], fk, sk[: len(fk)])
+        em = [fits[w][k] for k, w in enumerate(windows)]
         for k in range(len(fk)):
             modes.append(ModeComparison(k + 1, fk[k], float(z_model[k]), ed[k], em[k]))
     ratio_d = ratio_m = shift = shift_err = zr_d = zr_m = math.nan

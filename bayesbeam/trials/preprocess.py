@@ -372,8 +372,9 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
             strength.append(ratio)
             numbers.append(k + 1)
     harmonics = []
+    near = _near_harmonic(f, f1)
     for n in range(2, MAX_HARMONIC + 1):
-        win = np.abs(f - n * f1) <= HARMONIC_TOL * n * f1
+        win = near & (np.rint(f / f1) == n)
         local = (f > n * f1 / 2) & (f < 2 * n * f1) & (f < band)
         if n * f1 * (1 + HARMONIC_TOL) >= band or np.count_nonzero(local) < 8:
             break
@@ -382,6 +383,12 @@ def _seen_modes(trial: Trial, t: np.ndarray, y: np.ndarray, band: float
         if ratio > PEAK_FACTOR:
             harmonics.append((n, float(f[i]), ratio))
     return f1, seen, strength, numbers, int(np.count_nonzero(sel)), tuple(harmonics)
+
+
+def _near_harmonic(f: np.ndarray, f1: float, lobe: float = 0.0) -> np.ndarray:
+    """Return where ``f`` (Hz) lies within ``max(HARMONIC_TOL n f1, lobe)`` of ``n f1``, n >= 2."""
+    n = np.rint(f / f1)
+    return (n >= 2) & (np.abs(f - n * f1) <= np.maximum(HARMONIC_TOL * n * f1, lobe))
 
 
 def _mode_peak(t: np.ndarray, y: np.ndarray, fk: float, band: float, f1: float
@@ -404,10 +411,7 @@ def _mode_peak(t: np.ndarray, y: np.ndarray, fk: float, band: float, f1: float
         power = amp**2
         win = (f > fk * (1 - MODE_WINDOW)) & (f < min(band, fk * (1 + MODE_WINDOW)))
         local = (f > fk / 2) & (f < min(band, 2 * fk))
-        n = np.rint(f / f1)
-        # Within 1 % of n f1, or within the Hann window's main lobe (±2/T) of it.
-        harmonic = (n >= 2) & (np.abs(f - n * f1) <= np.maximum(HARMONIC_TOL * n * f1,
-                                                                2.0 / dur))
+        harmonic = _near_harmonic(f, f1, lobe=2.0 / dur)  # the Hann main lobe: ±2/T
         win &= ~harmonic
         local &= ~harmonic
         if np.any(win) and np.count_nonzero(local) >= 8:
