@@ -23,12 +23,15 @@ Two parts (``--part``):
     ``../shared/data/real``, read in place): 2 s windows from 0.1 s after the release
     peak, resampled to 512 Hz, ``--model`` (default the uniform beam with a point mass
     anywhere on the span, ``viscous+kv+added_mass+ar1_noise``) with free amplitudes of
-    the modes below 0.8 Nyquist. One joint fit with the material and the attachment
-    (E, mass, and its position: from the clamp at one length, from the free end over
-    several; the same strip and sensor board in every record) shared and the damping
-    and noise per record, then each record alone. Reports the 90 %
-    intervals of E (GPa), the mass (g) and its distance from the tip (cm), single and
-    joint, their width ratios, and each record's adequacy.
+    each record's own modes below 0.8 Nyquist (``--per-length N``: the first N records
+    of each length). One joint fit with the attachment (mass, and its position: from
+    the clamp at one length, from the free end over several; the same strip and sensor
+    board in every record) shared, and E, the damping and the noise per record
+    (``--shared`` to change), then each record alone. Reports the 90 % intervals of E
+    (GPa), the mass (g) and its distance from the tip (cm), single and joint, their
+    width ratios, each record's adequacy, and the bridge-sampling log evidence of the
+    joint fit minus the sum of the single records' (does one mass at one place serve
+    them all?).
 ``marginal``
     One trial (``--trial``; default: the first of ``bench``'s releases), one model:
     the single fit (sigma and w0 sampled) against the
@@ -39,7 +42,7 @@ Two parts (``--part``):
 Run from the repository root, e.g.::
 
     python studies/joint_fits.py --part shipped --beams beam2 --out studies/figures
-    python studies/joint_fits.py --part real --length 60 --target-ess 300
+    python studies/joint_fits.py --part real --length 30,40,50,60 --per-length 1
     python studies/joint_fits.py --part marginal --seeds 3
     python studies/joint_fits.py --part bench --model viscous+kv
 
@@ -132,15 +135,17 @@ def shipped(beams: list[str], settings: dict, say, save, pool: bool = True) -> l
 REAL_SHOWN = (("E", 1e-9, "GPa"), ("added_mass", 1e3, "g"), ("tip_distance", 1e2, "cm"))
 
 
-def _real_intervals(result, length: float) -> dict:
-    """90 % intervals of E, the added mass and its distance from the tip (SI -> shown units)."""
-    X = result.theta_samples().reshape(-1, result.chain.ndim)
-    cols = {n: X[:, result.names.index(n)] for n in ("E", "added_mass", "added_mass_position",
-                                                     TIP_DISTANCE) if n in result.names}
+def _real_intervals(view, length: float) -> dict:
+    """90 % intervals of E, the added mass and its distance from the tip (shown units).
+
+    ``view`` is one record's posterior in its own parameters (a :class:`JointFit`'s
+    ``trials`` entry), so single and joint fits are read the same way.
+    """
+    X = view.theta_samples().reshape(-1, view.chain.ndim)
+    cols = {n: X[:, view.names.index(n)] for n in ("E", "added_mass", "added_mass_position")
+            if n in view.names}
     if "added_mass_position" in cols:
         cols["tip_distance"] = length - cols.pop("added_mass_position")
-    if TIP_DISTANCE in cols:
-        cols["tip_distance"] = cols.pop(TIP_DISTANCE)
     return {n: [v * scale for v in _interval(cols[n])] for n, scale, _ in REAL_SHOWN
             if n in cols}
 
@@ -167,52 +172,86 @@ def _n_modes(trial) -> int:
     return max(1, sum(1 for r in RATIOS if r * f1 < 0.8 * nyq))
 
 
-def real(lengths: list[int], model: str, settings: dict, say, save) -> dict:
+def _scored(trials, model, shared, initial, common, seed):
+    """Fit jointly, score by bridge sampling, and return what the study reports of it."""
+    from bayesbeam.comparison.joint import score_joint
+
+    t0 = time.perf_counter()
+    jf = fit_joint(trials, model, shared=shared, initial=initial, seed=seed, **common)
+    sc = score_joint(jf, seed=seed)
+    c = jf.result.chain
+    return {
+        "records": [t.name for t in trials], "labels": list(jf.labels),
+        "intervals": {lb: _real_intervals(v, float(t.beam.length))
+                      for lb, v, t in zip(jf.labels, jf.trials, trials, strict=True)},
+        "adequate": {lb: bool(v.adequacy.get("ok")) for lb, v in zip(jf.labels, jf.trials,
+                                                                     strict=True)},
+        "log_z": sc.evidence.log_z, "log_z_err": sc.evidence.log_z_err,
+        "log_prob_map": float(jf.result.settings["log_prob_map"]),
+        "elpd": sc.loo.elpd_loo if sc.loo is not None else None,
+        "elpd_se": sc.loo.se if sc.loo is not None else None,
+        "notes": list(sc.notes), "converged": bool(c.converged), "ess_min": c.ess_min,
+        "tau_max": c.tau_max, "ndim": c.ndim, "steps": c.n_steps_total,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def real(lengths: list[int], model: str, settings: dict, say, save, *,
+         per_length: int | None = None, shared: tuple[str, ...] | None = None) -> dict:
     """Joint fit of the aluminium records at ``lengths`` (cm), then each record alone.
 
     One length: the attachment's position from the clamp is shared; several: its
-    distance from the free end (``added_mass_tip_distance``).
+    distance from the free end (``added_mass_tip_distance``). ``shared`` (default: the
+    mass and its place) names the shared parameters; E stays per record by default
+    because at each free length it also absorbs that length's clamp compliance (a
+    shared E would make f1, known to 1e-4, pull on the mass). Every record keeps its
+    own initial condition: free amplitudes of its modes below 0.8 Nyquist. The
+    evidence of the joint fit against the sum of the single records' says whether one
+    mass at one place serves them all (bridge sampling, errors in quadrature).
     """
     from bayesbeam.trials.realdata import list_real_datasets
 
     trials = []
     for length_cm in lengths:
         count = sum(1 for r in list_real_datasets() if r.kwargs.get("length_cm") == length_cm)
+        count = count if per_length is None else min(count, per_length)
         trials += [_window(length_cm, i) for i in range(count)]
-    k = min(_n_modes(t) for t in trials)
+    initial = [f"modes:{_n_modes(t)}" for t in trials]
     where = "added_mass_position" if len(set(lengths)) == 1 else TIP_DISTANCE
     physical = parse_model(model).physical_params
-    shared = tuple(n for n in ("E", "added_mass") if n in physical)
-    shared += (where,) if "added_mass_position" in physical else ()
-    common = {"initial": f"modes:{k}", "n_elements": 10, **settings}
+    if shared is None:
+        shared = ("added_mass",) if "added_mass" in physical else ()
+        shared += (where,) if "added_mass_position" in physical else ()
+    common = {"n_elements": 10, **settings}
     out: dict = {"lengths_cm": lengths, "model": model, "records": [t.name for t in trials],
-                 "initial": common["initial"], "shared": list(shared)}
-    t0 = time.perf_counter()
+                 "initial": initial, "shared": list(shared)}
     say(f"real: joint fit of {len(trials)} records at {lengths} cm ({model}, shared {shared})")
-    jf = fit_joint(trials, model, shared=shared, seed=0, **common)
-    c = jf.result.chain
-    out["joint"] = {"intervals": _real_intervals(jf.result, float(trials[0].beam.length)),
-                    "adequate": {lb: bool(v.adequacy.get("ok"))
-                                 for lb, v in zip(jf.labels, jf.trials, strict=True)},
-                    "converged": bool(c.converged), "ess_min": c.ess_min, "ndim": c.ndim,
-                    "steps": c.n_steps_total, "seconds": time.perf_counter() - t0}
+    out["joint"] = _scored(trials, model, shared, initial, common, seed=0)
     out["single"] = []
     save(out)
-    for i, tr in enumerate(trials):
+    for i, (tr, ini) in enumerate(zip(trials, initial, strict=True)):
         say(f"real: single fit {i + 1}/{len(trials)} ({tr.name})")
-        t0 = time.perf_counter()
-        r = fit(tr, model, seed=i, **common)
-        out["single"].append({"record": tr.name,
-                              "intervals": _real_intervals(r, float(tr.beam.length)),
-                              "adequate": bool(r.adequacy.get("ok")) if r.adequacy else None,
-                              "converged": bool(r.chain.converged),
-                              "seconds": time.perf_counter() - t0})
+        out["single"].append(_scored([tr], model, (), ini, common, seed=i + 1))
         save(out)
-    joint = out["joint"]["intervals"]
-    out["width_ratio_median"] = {
-        n: float(np.median([(s["intervals"][n][2] - s["intervals"][n][0])
-                            for s in out["single"]]) / (joint[n][2] - joint[n][0]))
-        for n in joint}
+    sep = sum(s["log_z"] for s in out["single"])
+    sep_err = math.sqrt(sum(s["log_z_err"] ** 2 for s in out["single"]))
+    j = out["joint"]
+    out["delta_log_z_joint_minus_separate"] = j["log_z"] - sep
+    out["delta_log_z_err"] = math.hypot(j["log_z_err"], sep_err)
+    # The same question at the best points (no sampling error; no Occam factor).
+    out["delta_log_prob_map"] = j["log_prob_map"] - sum(s["log_prob_map"]
+                                                        for s in out["single"])
+    widths = {}
+    for n, _, _ in REAL_SHOWN:
+        ratios = []
+        for s, lb in zip(out["single"], j["labels"], strict=True):
+            one = s["intervals"][s["labels"][0]]
+            if n in one:
+                ratios.append((one[n][2] - one[n][0])
+                              / (j["intervals"][lb][n][2] - j["intervals"][lb][n][0]))
+        if ratios:
+            widths[n] = float(np.median(ratios))
+    out["width_ratio_median"] = widths
     return out
 
 
@@ -278,6 +317,11 @@ def main() -> None:
     ap.add_argument("--part", choices=("shipped", "real", "marginal", "bench"), required=True)
     ap.add_argument("--length", default="60",
                     help="aluminium length(s) of --part real, cm, comma-separated")
+    ap.add_argument("--per-length", type=int, default=None,
+                    help="--part real: the first N records of each length (default all)")
+    ap.add_argument("--shared", default=None,
+                    help="--part real: shared parameters, comma-separated (default the "
+                         "added mass and its place; E per record)")
     ap.add_argument("--beams", default="beam1,beam2,beam3")
     ap.add_argument("--no-pool", action="store_true",
                     help="--part shipped: each trial's own damping instead of a population")
@@ -323,22 +367,29 @@ def main() -> None:
                 (args.out / "joint_real.json").write_text(
                     json.dumps(out, indent=2, default=str) + "\n")
 
+            shared = (None if args.shared is None
+                      else tuple(v.strip() for v in args.shared.split(",") if v.strip()))
             res = real([int(v) for v in args.length.split(",")],
-                       args.model or "viscous+kv+added_mass+ar1_noise", settings, say, save_real)
+                       args.model or "viscous+kv+added_mass+ar1_noise", settings, say, save_real,
+                       per_length=args.per_length, shared=shared)
             print(f"{res['lengths_cm']} cm, {len(res['records'])} records, {res['model']}, "
-                  f"{res['initial']}, shared {res['shared']}")
-            print("| fit | " + " | ".join(f"{n} [q05, q95] ({u})" for n, _, u in REAL_SHOWN)
-                  + " | adequate | converged |")
-            print("|---" * (len(REAL_SHOWN) + 3) + "|")
-            rows = [(s["record"], s["intervals"], str(s["adequate"]), s["converged"])
-                    for s in res["single"]]
+                  f"shared {res['shared']}")
+            print("| record | initial | fit | " + " | ".join(
+                f"{n} [q05, q95] ({u})" for n, _, u in REAL_SHOWN) + " | adequate | "
+                "converged (ESS, s) |")
+            print("|---" * (len(REAL_SHOWN) + 5) + "|")
             j = res["joint"]
-            rows.append(("joint", j["intervals"], f"{sum(j['adequate'].values())}/"
-                         f"{len(j['adequate'])}", j["converged"]))
-            for name, iv, ok, conv in rows:
-                cells = " | ".join(f"{iv[n][1]:.4g} [{iv[n][0]:.4g}, {iv[n][2]:.4g}]"
-                                   if n in iv else "-" for n, _, _ in REAL_SHOWN)
-                print(f"| {name} | {cells} | {ok} | {conv} |")
+            for k, (s1, lb) in enumerate(zip(res["single"], j["labels"], strict=True)):
+                for tag, f, key in (("single", s1, s1["labels"][0]), ("joint", j, lb)):
+                    iv = f["intervals"][key]
+                    cells = " | ".join(f"{iv[n][1]:.4g} [{iv[n][0]:.4g}, {iv[n][2]:.4g}]"
+                                       if n in iv else "-" for n, _, _ in REAL_SHOWN)
+                    print(f"| {lb} | {res['initial'][k]} | {tag} | {cells} | "
+                          f"{f['adequate'][key]} | {f['converged']} ({f['ess_min']:.0f}, "
+                          f"{f['seconds']:.0f}) |")
+            print(f"log Z joint - sum of single: {res['delta_log_z_joint_minus_separate']:.1f} "
+                  f"± {res['delta_log_z_err']:.1f} nats (at the MAPs: "
+                  f"{res['delta_log_prob_map']:.1f})")
             print("median single/joint width ratio: " + ", ".join(
                 f"{n} {v:.2f}" for n, v in res["width_ratio_median"].items()))
         elif args.part == "bench":

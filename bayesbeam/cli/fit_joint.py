@@ -91,15 +91,14 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
         raise error(f"the preprocessing gives the trials different models {sorted(models)} "
                     "(a sensor offset added to some); fit them with the same --model")
     model = parse_model(models.pop())
-    initials = {pre.initial for pre in pres}
-    if len(initials) != 1:
-        raise error(f"the trials need different initial conditions {sorted(initials)}; "
-                    "give --initial")
-    initial = initials.pop()
+    # Records of different length resolve different numbers of modes: each keeps its own
+    # initial condition (free amplitudes of its modes in band).
+    per_trial = [pre.initial for pre in pres]
+    initial: str | list[str] = per_trial[0] if len(set(per_trial)) == 1 else per_trial
     shared, pooled = split_names(args.shared), split_names(args.pooled)
     overrides = None
     if args.priors is not None:  # the file's entries, applied to every trial
-        base = default_priors(trials[0], model, n_elements=args.elements, initial=initial)
+        base = default_priors(trials[0], model, n_elements=args.elements, initial=per_trial[0])
         full = PriorSet.from_toml(args.priors, base=base)
         overrides = {n: full[n] for n in full if full[n] != base[n]}
     outdir = Path(args.outdir)

@@ -152,8 +152,10 @@ class JointProblem:
         Integrate sigma and the initial-condition amplitudes out (module docstring).
     n_elements : int
         Hermite elements of every trial's forward model.
-    initial : str
-        Initial-condition kind (:class:`bayesbeam.physics.forward.Forward`).
+    initial : str or sequence of str
+        Initial-condition kind (:class:`bayesbeam.physics.forward.Forward`), one for all
+        trials or one per trial (records of different length resolve different numbers
+        of modes: ``modes:k`` each; their amplitude names then differ between trials).
     priors : mapping of name -> Prior or dict, optional
         Overrides of the default priors (:func:`~bayesbeam.inference.problem.default_priors`),
         by a single trial's parameter names, applied to every trial. A shared name's
@@ -177,7 +179,7 @@ class JointProblem:
         pooled: Iterable[str] = (),
         marginalise: bool = True,
         n_elements: int = 16,
-        initial: str = "release",
+        initial: str | Sequence[str] = "release",
         priors: Mapping[str, Any] | None = None,
     ) -> None:
         trials = list(trials)
@@ -187,17 +189,26 @@ class JointProblem:
         self.model = parse_model(model)
         self.labels = trial_labels(trials)
         self.n_elements = int(n_elements)
-        self.initial = initial
+        initials = [initial] * len(trials) if isinstance(initial, str) else list(initial)
+        if len(initials) != len(trials):
+            raise JointError(f"{len(initials)} initial conditions for {len(trials)} trials; "
+                             "give one for all or one per trial")
+        #: One kind for all trials (str), or the kinds per trial (tuple) where they differ.
+        self.initial: str | tuple[str, ...] = (
+            initials[0] if len(set(initials)) == 1 else tuple(initials))
         self.marginalise = bool(marginalise)
         self.overrides = dict(priors or {})
         self.problems = tuple(Problem(t, self.model, self.overrides or None,
-                                      n_elements=self.n_elements, initial=initial)
-                              for t in trials)
-        base = self.problems[0].names
+                                      n_elements=self.n_elements, initial=ini)
+                              for t, ini in zip(trials, initials, strict=True))
+        # The names every trial has (the amplitudes differ where the initial kinds do).
+        base = [n for n in self.problems[0].names
+                if all(n in pb.names for pb in self.problems[1:])]
         self.shared = tuple(dict.fromkeys(shared))
         self.pooled = tuple(dict.fromkeys(pooled))
-        lin = amplitude_names(base)
-        marg = tuple(["sigma", *lin]) if self.marginalise else ()
+        margs = [tuple(["sigma", *amplitude_names(pb.names)]) if self.marginalise else ()
+                 for pb in self.problems]
+        marg = tuple(dict.fromkeys(n for m in margs for n in m))
         self._check_names(base, marg)
         self.marginalised = marg
         entries: list[tuple[str, Prior]] = []
@@ -207,20 +218,20 @@ class JointProblem:
         for n in self.pooled:
             entries.append((f"{n}_median", _envelope([pb.priors[n] for pb in self.problems], n)))
             entries.append((f"{n}_spread", HalfNormal(SPREAD_SCALE)))
-        for label, pb in zip(self.labels, self.problems, strict=True):
-            for n in base:
+        for label, pb, m in zip(self.labels, self.problems, margs, strict=True):
+            for n in pb.names:
                 if n in self.pooled:
                     entries.append((f"{n}_z[{label}]", Normal(0.0, 1.0)))
-                elif n not in self.shared and n not in marg and not self._from_tip(n):
+                elif n not in self.shared and n not in m and not self._from_tip(n):
                     entries.append((f"{n}[{label}]", pb.priors[n]))
         self.priors = PriorSet(entries)
         self.names = self.priors.names
         col = {n: j for j, n in enumerate(self.names)}
         # Per trial and per column of its Problem: where the value comes from.
         self._src: list[list[tuple[Any, ...]]] = []
-        for label, pb in zip(self.labels, self.problems, strict=True):
+        for label, pb, m in zip(self.labels, self.problems, margs, strict=True):
             src: list[tuple[Any, ...]] = []
-            for n in base:
+            for n in pb.names:
                 if self._from_tip(n):
                     src.append(("tip", col[TIP_DISTANCE], float(pb.trial.beam.length)))
                 elif n in self.shared:
@@ -228,16 +239,21 @@ class JointProblem:
                 elif n in self.pooled:
                     src.append(("pool", col[f"{n}_median"], col[f"{n}_spread"],
                                 col[f"{n}_z[{label}]"]))
-                elif n in marg:
+                elif n in m:
                     src.append(("marg",))
                 else:
                     src.append(("col", col[f"{n}[{label}]"]))
             self._src.append(src)
-        self._lin = [base.index(n) for n in lin]
-        self._marg_mask = np.array([n in marg for n in base])
-        self._sigma = base.index("sigma")
-        self._offset = base.index("offset") if "offset" in base else None
-        self._rho = base.index("rho") if "rho" in base else None
+        # Per trial: columns of its Problem (they differ where the initial kinds do).
+        self._lin = [[pb.names.index(n) for n in amplitude_names(pb.names)]
+                     for pb in self.problems]
+        self._marg_mask = [np.array([n in m for n in pb.names])
+                           for pb, m in zip(self.problems, margs, strict=True)]
+        self._sigma = [pb.names.index("sigma") for pb in self.problems]
+        self._offset = [pb.names.index("offset") if "offset" in pb.names else None
+                        for pb in self.problems]
+        self._rho = [pb.names.index("rho") if "rho" in pb.names else None
+                     for pb in self.problems]
 
     def _from_tip(self, name: str) -> bool:
         """Whether ``name`` (a trial's column) comes from the shared :data:`TIP_DISTANCE`."""
@@ -294,7 +310,7 @@ class JointProblem:
                         f"sigma of {pb.trial.name!r} has prior {pb.priors['sigma'].to_dict()}; "
                         "the closed-form marginal needs LogUniform (or marginalise=False)"
                     )
-                for n in marg[1:]:
+                for n in amplitude_names(pb.names):
                     if not isinstance(pb.priors[n], Uniform):
                         raise JointError(
                             f"{n} of {pb.trial.name!r} has prior {pb.priors[n].to_dict()}; "
@@ -360,25 +376,25 @@ class JointProblem:
         -------
         ndarray, shape (ndim,)
         """
-        base = self.problems[0].names
+        pbs = self.problems
         x = np.full(self.ndim, np.nan)
         for n in self.shared:
             if n == TIP_DISTANCE:
-                j = base.index("added_mass_position")
                 x[self.names.index(n)] = np.median([
-                    float(pb.trial.beam.length) - X[j]
-                    for pb, X in zip(self.problems, Xs, strict=True)])
+                    float(pb.trial.beam.length) - X[pb.names.index("added_mass_position")]
+                    for pb, X in zip(pbs, Xs, strict=True)])
                 continue
-            x[self.names.index(n)] = np.median([X[base.index(n)] for X in Xs])
+            x[self.names.index(n)] = np.median([X[pb.names.index(n)]
+                                                for pb, X in zip(pbs, Xs, strict=True)])
         for n in self.pooled:
-            logs = np.log([X[base.index(n)] for X in Xs])
+            logs = np.log([X[pb.names.index(n)] for pb, X in zip(pbs, Xs, strict=True)])
             m, s = float(np.mean(logs)), max(float(np.std(logs)), 0.05)
             x[self.names.index(f"{n}_median")] = np.exp(m)
             x[self.names.index(f"{n}_spread")] = s
             for label, v in zip(self.labels, logs, strict=True):
                 x[self.names.index(f"{n}_z[{label}]")] = (v - m) / s
-        for label, X in zip(self.labels, Xs, strict=True):
-            for j, n in enumerate(base):
+        for label, pb, X in zip(self.labels, pbs, Xs, strict=True):
+            for j, n in enumerate(pb.names):
                 key = f"{n}[{label}]"
                 if key in self.names:
                     x[self.names.index(key)] = X[j]
@@ -391,25 +407,25 @@ class JointProblem:
         Returns ``y`` (k, T) (data minus the offset, minus the fixed response when the
         model has no linear amplitudes), ``B`` (k, T, p) and ``valid`` (k,).
         """
-        pb = self.problems[i]
+        pb, lin, j_off = self.problems[i], self._lin[i], self._offset[i]
         k = X.shape[0]
         Xb = X.copy()
-        Xb[:, self._sigma] = 1.0  # not used by the signal; keeps the row finite
-        Xb[:, self._lin] = 0.0
+        Xb[:, self._sigma[i]] = 1.0  # not used by the signal; keeps the row finite
+        Xb[:, lin] = 0.0
         off = None
-        if self._offset is not None:
-            off = Xb[:, self._offset].copy()
-            Xb[:, self._offset] = 0.0
+        if j_off is not None:
+            off = Xb[:, j_off].copy()
+            Xb[:, j_off] = 0.0
         y = np.broadcast_to(pb.data, (k, pb.data.size)).copy()
         if off is not None:
             y -= off[:, None]
         valid = np.ones(k, dtype=bool)
         bases = []
-        if not self._lin:
+        if not lin:
             res = pb.predict(Xb)
             valid &= res.valid
             y = y - np.where(res.valid[:, None], res.y, 0.0)
-        for j in self._lin:
+        for j in lin:
             Xj = Xb.copy()
             Xj[:, j] = 1.0
             res = pb.predict(Xj)
@@ -424,11 +440,11 @@ class JointProblem:
     def _whiten(self, i: int, X: np.ndarray, y: np.ndarray,
                 B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
         """AR(1) whitening of trial ``i`` at the sets' rho (identity for i.i.d. noise)."""
-        if self._rho is None:
+        if self._rho[i] is None:
             return y, B, 0.0
         pb = self.problems[i]
         times = None if pb.trial.is_uniform else pb.trial.times
-        rho = X[:, self._rho]
+        rho = X[:, self._rho[i]]
         yw, log_det = ar1_whiten(y, rho, times=times)
         Bw = np.moveaxis(ar1_whiten(np.moveaxis(B, -1, 0), rho, times=times)[0], 0, -1)
         return yw, Bw, log_det
@@ -438,7 +454,7 @@ class JointProblem:
         pri = self.problems[i].priors
         sig = pri["sigma"]
         base = self.problems[i].names
-        log_volume = float(sum(np.log(pri[base[j]].hi - pri[base[j]].lo) for j in self._lin))
+        log_volume = float(sum(np.log(pri[base[j]].hi - pri[base[j]].lo) for j in self._lin[i]))
         return float(sig.lo), float(sig.hi), log_volume
 
     def trial_log_likelihood(self, X: np.ndarray, i: int) -> np.ndarray:
@@ -458,7 +474,7 @@ class JointProblem:
         Xi = self.trial_theta(X, i)
         out = np.full(Xi.shape[0], -np.inf)
         # A pooled value overflowed (z far out in the tails): density zero, not NaN.
-        fin = np.all(np.isfinite(Xi) | self._marg_mask, axis=1)
+        fin = np.all(np.isfinite(Xi) | self._marg_mask[i], axis=1)
         if not np.any(fin):
             return out
         if not np.all(fin):
@@ -527,8 +543,8 @@ class JointProblem:
                     lo, hi, _ = self._bounds(i)
                     sigma, alpha = draw_conditional(yw, Bw, lo, hi, rng)
                     rows = np.flatnonzero(valid)
-                    Xi[rows, self._sigma] = sigma
-                    for c, j in enumerate(self._lin):
+                    Xi[rows, self._sigma[i]] = sigma
+                    for c, j in enumerate(self._lin[i]):
                         Xi[rows, j] = alpha[:, c]
             out.append(Xi)
         return out

@@ -105,6 +105,8 @@ class JointFit:
         for lb, view in zip(self.labels, self.trials, strict=True):
             post, units = view.summary(), view.units()
             for n in (*pb.pooled, *pb.marginalised, *mapped):
+                if n not in post:  # an amplitude of a mode this trial does not hold
+                    continue
                 d["posterior"][f"{n}[{lb}]"] = post[n]
                 d["units"][f"{n}[{lb}]"] = units[n]
         d["joint"] = {"labels": list(self.labels), "shared": list(pb.shared),
@@ -148,11 +150,18 @@ class JointFit:
         for j, n in enumerate(res.names):
             if "[" not in n:
                 post[n] = theta[..., j]
-        base = pb.problems[0].names
-        for j, n in enumerate(base):
+        # Every trial's names (amplitudes differ where the trials' initial kinds do);
+        # NaN where a trial has no such parameter.
+        base = dict.fromkeys(n for p in pb.problems for n in p.names)
+        for n in base:
             if n in pb.shared:
                 continue
-            stack = [np.swapaxes(v.theta_samples()[..., j], 0, 1) for v in self.trials]
+            stack = []
+            for p, v in zip(pb.problems, self.trials, strict=True):
+                th = v.theta_samples()
+                col = (th[..., p.names.index(n)] if n in p.names
+                       else np.full(th.shape[:-1], np.nan))
+                stack.append(np.swapaxes(col, 0, 1))
             post[n] = np.stack(stack, axis=-1)
         for n in next(iter(self.trials)).derived if self.trials else ():
             post[n] = np.stack([np.swapaxes(v.derived[n], 0, 1) for v in self.trials], axis=-1)
@@ -293,7 +302,7 @@ def fit_joint(
     seed: int = 0,
     n_elements: int = FIT_DEFAULTS.n_elements,
     refine_mesh: bool = FIT_DEFAULTS.refine_mesh,
-    initial: str = FIT_DEFAULTS.initial,
+    initial: str | Sequence[str] = FIT_DEFAULTS.initial,
     nwalkers: int | None = FIT_DEFAULTS.nwalkers,
     target_ess: float = FIT_DEFAULTS.target_ess,
     max_steps: int = FIT_DEFAULTS.max_steps,
@@ -315,8 +324,10 @@ def fit_joint(
         See :class:`~bayesbeam.inference.joint.JointProblem`.
     seed : int
         Seed of every random choice (starts, walkers, emcee, the marginalised draws).
-    n_elements, refine_mesh, initial, nwalkers, target_ess, max_steps, min_steps
+    n_elements, refine_mesh, nwalkers, target_ess, max_steps, min_steps
         As for :func:`bayesbeam.inference.fit.fit`.
+    initial : str or sequence of str
+        As for :func:`bayesbeam.inference.fit.fit`, one for all trials or one per trial.
     outdir : path, optional
         Where the HDF5 checkpoint ``chain.h5`` is kept.
     resume : bool
@@ -381,7 +392,8 @@ def fit_joint(
         label=f"joint {model.name}: emcee", **sampler_kw,
     )
     settings = {
-        "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh), "initial": initial,
+        "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh),
+        "initial": initial if isinstance(initial, str) else list(initial),
         "nwalkers": nwalkers, "target_ess": target_ess, "max_steps": max_steps,
         "sampler_options": dict(sampler_options or {}), "seed": seed,
         "prior_overrides": {n: jp.problems[0].priors[n].to_dict() for n in jp.overrides},

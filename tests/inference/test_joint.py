@@ -296,3 +296,37 @@ def test_amplitude_dependent_model_is_not_marginalised(trials, model):
         JointProblem(trials, model, shared=("E",), n_elements=NE)
     jq = JointProblem(trials, model, shared=("E",), marginalise=False, n_elements=NE)
     assert jq.marginalised == ()
+
+
+def test_trials_with_their_own_initial_kinds(trials):
+    # Records of different length resolve different numbers of modes: each trial keeps
+    # its own free amplitudes. With E shared, the joint marginal likelihood is the sum of
+    # each trial's own (a one-trial JointProblem with that trial's kind) at the same E; a
+    # column map that mixed up the trials' amplitude columns would not give it.
+    kinds = ["modes:1", "modes:2", "release"]
+    jp = JointProblem(trials, "viscous", shared=("E",), n_elements=NE, initial=kinds)
+    assert jp.initial == tuple(kinds)
+    from bayesbeam.inference.problem import amplitude_names
+
+    assert [len(amplitude_names(pb.names)) for pb in jp.problems] == [2, 4, 1]
+    assert not any(n.startswith(("A_", "B_", "w0")) for n in jp.names)  # integrated out
+    X = np.empty((3, jp.ndim))
+    X[:, jp.names.index("E")] = E_TRUE * np.array([0.999, 1.0, 1.001])
+    for i, g in enumerate((0.2, 0.25, 0.18)):
+        X[:, jp.names.index(f"gamma[t{i}]")] = g * np.array([0.9, 1.0, 1.1])
+    U = jp.priors.to_u(X)
+    X = jp.theta(U)
+    total = np.zeros(3)
+    for i, (tr, kind) in enumerate(zip(trials, kinds, strict=True)):
+        one = JointProblem([tr], "viscous", shared=(), n_elements=NE, initial=kind)
+        x1 = np.column_stack([X[:, jp.names.index("E")], X[:, jp.names.index(f"gamma[t{i}]")]])
+        assert one.names == (f"E[t{i}]", f"gamma[t{i}]")
+        total += one.log_likelihood(one.priors.to_u(x1))
+    # Same arithmetic on the same arrays, summed in another order: rounding only.
+    np.testing.assert_allclose(jp.log_likelihood(U), total, rtol=1e-12)
+    # Completed draws hold each trial's own amplitudes, finite.
+    done = jp.complete(U, np.random.default_rng(0))
+    assert [d.shape[1] for d in done] == [pb.ndim for pb in jp.problems]
+    assert all(np.all(np.isfinite(d)) for d in done)
+    with pytest.raises(JointError, match="one per trial"):
+        JointProblem(trials, "viscous", n_elements=NE, initial=kinds[:2])
