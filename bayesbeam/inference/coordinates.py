@@ -21,7 +21,7 @@ from scipy.special import logsumexp
 from bayesbeam.inference.problem import BETA1, Problem
 from bayesbeam.stats.convergence import autocorr_time, ess_rhat
 from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform
-from bayesbeam.stats.sampling import Chain, de_moves, run_emcee
+from bayesbeam.stats.sampling import Chain, named_moves, run_emcee
 
 __all__ = ["PREBURN_STEPS", "Coordinates", "SamplerCoordinates", "chain_in_u",
            "sample_in_coordinates"]
@@ -185,12 +185,13 @@ def chain_in_u(chain: Chain, u_samples: np.ndarray, log_prob: np.ndarray | None 
 
 
 def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: Coordinates,
-                          u0: np.ndarray, **kwargs: Any) -> Chain:
+                          u0: np.ndarray, *, moves: str = "de", **kwargs: Any) -> Chain:
     """Run emcee (:func:`~bayesbeam.stats.sampling.run_emcee`) in ``coords``.
 
     The walkers start at ``coords.to_v(u0)`` and move on ``log_prob(u(v)) + log|∂u/∂v|``
-    with the differential-evolution mixture of :func:`~bayesbeam.stats.sampling.de_moves`;
-    the chain comes back in ``u`` (:func:`chain_in_u`), its log density in ``u``.
+    with the proposal mixture ``moves`` (default the differential-evolution mixture of
+    :func:`~bayesbeam.stats.sampling.de_moves`); the chain comes back in ``u``
+    (:func:`chain_in_u`), its log density in ``u``.
 
     Parameters
     ----------
@@ -200,6 +201,8 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
         e.g. :class:`SamplerCoordinates`.
     u0 : ndarray, shape (nwalkers, ndim)
         Initial walkers in ``u``.
+    moves : str
+        A name of :data:`~bayesbeam.stats.sampling.MOVE_SETS`.
     **kwargs
         Passed to :func:`~bayesbeam.stats.sampling.run_emcee` (``seed``, ``max_steps``,
         ``target_ess``, ``names``, ``preburn``, ...).
@@ -211,7 +214,7 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
     def log_prob_v(V: np.ndarray) -> np.ndarray:
         return log_prob(coords.to_u(V)) + coords.log_jacobian(V)
 
-    chain = run_emcee(log_prob_v, coords.to_v(u0), moves=de_moves(), **kwargs)
+    chain = run_emcee(log_prob_v, coords.to_v(u0), moves=named_moves(moves), **kwargs)
     if coords.identity:
         return chain
     return chain_in_u(chain, coords.to_u(chain.samples),

@@ -41,7 +41,7 @@ from bayesbeam.inference.starts import data_features, neutral_value, physics_sta
 from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 from bayesbeam.physics.propagate import single_blas_thread
 from bayesbeam.stats.numdiff import fd_hessian
-from bayesbeam.stats.sampling import Chain, init_walkers
+from bayesbeam.stats.sampling import MOVE_SETS, Chain, init_walkers
 from bayesbeam.trials.modal_id import first_mode_decay_rate
 from bayesbeam.trials.trial import Trial
 
@@ -433,7 +433,7 @@ def find_map(
 
 
 _SAMPLER_OPTIONS = ("n_tau", "tau_rtol", "check_every", "burn_in_taus", "thin",
-                    "checkpoint_seconds")
+                    "checkpoint_seconds", "moves")
 
 
 def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -441,6 +441,9 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     bad = sorted(set(opts) - set(_SAMPLER_OPTIONS))
     if bad:
         raise FitError(f"unknown sampler_options {bad}; allowed: {list(_SAMPLER_OPTIONS)}")
+    if "moves" in opts and opts["moves"] not in MOVE_SETS:
+        raise FitError(f"unknown sampler_options moves {opts['moves']!r}; choose one of "
+                       f"{sorted(MOVE_SETS)}")
     return opts
 
 
@@ -520,7 +523,9 @@ def fit(
     sampler_options : mapping, optional
         Further keyword arguments of :func:`bayesbeam.stats.sampling.run_emcee`
         (``n_tau``, ``tau_rtol``, ``check_every``, ``burn_in_taus``, ``thin``,
-        ``checkpoint_seconds``), e.g. a cheaper stopping rule for batch studies.
+        ``checkpoint_seconds``), e.g. a cheaper stopping rule for batch studies, and
+        ``moves``: the proposal mixture, a name of
+        :data:`~bayesbeam.stats.sampling.MOVE_SETS` (default ``"de"``).
 
     Returns
     -------

@@ -295,7 +295,8 @@ class FitResult:
         -------
         dict
             ``ess_min``, ``tau_max`` (steps), ``rhat_max``, ``converged``,
-            ``seconds``, ``n_calls``, ``acceptance_mean``, ``burn_in``,
+            ``seconds``, ``ess_per_second`` (smallest ESS per second of sampling),
+            ``n_calls``, ``acceptance_mean``, ``burn_in``,
             ``n_steps_total``, ``nwalkers``, ``n_samples`` and per-parameter
             ``tau``, ``ess``, ``rhat`` dicts.
         """
@@ -306,6 +307,7 @@ class FitResult:
             "rhat_max": c.rhat_max,
             "converged": bool(c.converged),
             "seconds": float(c.seconds),
+            "ess_per_second": float(c.ess_per_second),
             "n_calls": int(c.n_calls),
             "acceptance_mean": float(np.mean(c.acceptance_fraction)),
             "burn_in": int(c.burn_in),
@@ -371,7 +373,8 @@ class FitResult:
         state = "converged" if c.converged else "NOT converged"
         head = (
             f"FitResult: model {self.model!r} ({state}; {c.n_steps_total} steps x "
-            f"{c.nwalkers} walkers, burn-in {c.burn_in}, {c.seconds:.1f} s)"
+            f"{c.nwalkers} walkers, burn-in {c.burn_in}, {c.seconds:.1f} s; "
+            f"ESS min {c.ess_min:.0f}, {c.ess_per_second:.3g} per s)"
         )
         cols = ("mean", "sd", "q05", "q50", "q95")
         width = max(5, *(len(n) for n in self.names))

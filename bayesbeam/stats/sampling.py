@@ -71,6 +71,8 @@ __all__ = [
     "Chain",
     "NotConvergedWarning",
     "de_moves",
+    "MOVE_SETS",
+    "named_moves",
     "init_walkers",
     "make_log_prob",
     "preburn_walkers",
@@ -206,6 +208,15 @@ class Chain:
     def rhat_max(self) -> float:
         """Largest split R-hat over parameters."""
         return float(np.max(self.rhat))
+
+    @property
+    def ess_per_second(self) -> float:
+        """Smallest bulk ESS per second of sampling wall time (NaN without a time).
+
+        The figure that compares samplers, moves and likelihoods: wall time alone
+        rewards a chain that stops early, ESS alone one that runs long.
+        """
+        return self.ess_min / self.seconds if self.seconds > 0 else math.nan
 
 
 # --------------------------------------------------------------------------------------
@@ -491,7 +502,9 @@ def de_moves() -> list[tuple[Any, float]]:
 
     Differential-evolution proposals (ter Braak 2006; ter Braak & Vrugt 2008) mix much
     faster than emcee's default stretch move on the near-Gaussian, correlated beam
-    posteriors (integrated autocorrelation times about 3-4x shorter in our runs).
+    posteriors (integrated autocorrelation times about 3-4x shorter in our runs;
+    ``studies/bench_moves.py`` measures ESS per second against the alternatives of
+    :data:`MOVE_SETS`).
 
     Returns
     -------
@@ -499,6 +512,37 @@ def de_moves() -> list[tuple[Any, float]]:
         The ``moves`` argument of :func:`run_emcee` (new move objects on each call).
     """
     return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+
+
+#: Named proposal mixtures (``sampler_options={"moves": NAME}``); ``"de"`` is the default.
+MOVE_SETS: dict[str, Callable[[], list[tuple[Any, float]]]] = {
+    "de": de_moves,
+    "stretch": lambda: [(emcee.moves.StretchMove(), 1.0)],
+    "de+stretch": lambda: [(emcee.moves.DEMove(), 0.5), (emcee.moves.StretchMove(), 0.5)],
+}
+
+
+def named_moves(name: str) -> list[tuple[Any, float]]:
+    """Return new move objects of the mixture ``name`` (:data:`MOVE_SETS`).
+
+    Parameters
+    ----------
+    name : str
+        ``"de"`` (differential evolution 0.8 + snooker 0.2), ``"stretch"`` (emcee's
+        default, Goodman & Weare 2010) or ``"de+stretch"`` (half each).
+
+    Returns
+    -------
+    list of (emcee.moves.Move, float)
+
+    Raises
+    ------
+    ValueError
+        On an unknown name (the message lists the known ones).
+    """
+    if name not in MOVE_SETS:
+        raise ValueError(f"unknown moves {name!r}; choose one of {sorted(MOVE_SETS)}")
+    return MOVE_SETS[name]()
 
 
 class _DeferredInterrupt:

@@ -195,6 +195,8 @@ def test_unknown_sampler_option_is_an_error(base):
     tr = base[0]
     with pytest.raises(ValueError, match="sampler_options"):
         fit(tr, "viscous", n_elements=NE, sampler_options={"tau_tol": 1})
+    with pytest.raises(ValueError, match="moves 'hmc'; choose one of"):
+        fit(tr, "viscous", n_elements=NE, sampler_options={"moves": "hmc"})
 
 
 def _cli(argv):

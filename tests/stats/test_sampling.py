@@ -104,6 +104,40 @@ def test_same_seed_same_chain(toy_chain):
     assert again.thin == 3
 
 
+def test_ess_per_second_is_the_smallest_ess_over_the_sampling_time(toy_chain):
+    import dataclasses
+    import math
+
+    assert toy_chain.seconds > 0
+    assert toy_chain.ess_per_second == toy_chain.ess_min / toy_chain.seconds
+    assert toy_chain.ess_min == float(np.min(toy_chain.ess))
+    # A chain without a time (a record read from a file that had none) gives NaN, not inf.
+    assert math.isnan(dataclasses.replace(toy_chain, seconds=0.0).ess_per_second)
+
+
+def test_named_move_sets():
+    import emcee
+
+    from bayesbeam.stats.sampling import MOVE_SETS, named_moves
+
+    kw = {"seed": 3, "names": PRIORS.names, "progress": False, "max_steps": 400,
+          "min_steps": 400, "target_ess": 1.0}
+    # "stretch" is emcee's default move (Goodman & Weare, a = 2): the same chain as
+    # leaving the moves to emcee.
+    with pytest.warns(NotConvergedWarning):
+        named = run_emcee(log_prob, start(), moves=named_moves("stretch"), **kw)
+    with pytest.warns(NotConvergedWarning):
+        default = run_emcee(log_prob, start(), moves=emcee.moves.StretchMove(), **kw)
+    np.testing.assert_array_equal(named.samples, default.samples)
+    # Each set holds fresh move objects whose weights sum to one.
+    for name in MOVE_SETS:
+        a, b = named_moves(name), named_moves(name)
+        assert sum(w for _, w in a) == pytest.approx(1.0)
+        assert all(m1 is not m2 for (m1, _), (m2, _) in zip(a, b, strict=True))
+    with pytest.raises(ValueError, match="choose one of"):
+        named_moves("hmc")
+
+
 def test_different_seed_different_chain():
     kw = dict(max_steps=100, progress=False)
     with pytest.warns(NotConvergedWarning):
