@@ -67,10 +67,24 @@ def run_joint(args: argparse.Namespace, models: list[str], error: type[Exception
         raise error("several trials: give --shared (e.g. --shared E) and/or --pooled; the "
                     "comparison is of what the trials share")
     paths = list(args.trial)
-    trials = []
+    trials, pres = [], []
     for p in paths:
         one = argparse.Namespace(**{**vars(args), "trial": p})
-        trials.append(opts.prepare_trial(one, error, say=opts.say)[0])
+        trial, pre = opts.prepare_trial(one, error, say=opts.say)
+        trials.append(trial)
+        pres.append(pre)
+    # As `fit` with several trials: the model each preprocessing asks for (a raw record's
+    # sensor offset), and each trial's own initial condition.
+    named = []
+    for m in models:
+        per = {pre.model_name(m) for pre in pres}
+        if len(per) != 1:
+            raise error(f"the preprocessing gives the trials different models {sorted(per)} "
+                        "(a sensor offset added to some); compare them with the same models")
+        named.append(per.pop())
+    models = named
+    per_trial = [pre.initial for pre in pres]
+    initial: str | list[str] = per_trial[0] if len(set(per_trial)) == 1 else per_trial
     variants = [(shared, pooled)]
     if pooled:
         variants.append((shared, ()))
@@ -90,7 +104,8 @@ def run_joint(args: argparse.Namespace, models: list[str], error: type[Exception
             try:
                 settings = opts.fit_settings(args)  # holds the seed
                 cmp = compare_joint(trials, model, variants, threshold=threshold,
-                                    progress=True, executor=executor, **settings)
+                                    progress=True, executor=executor, initial=initial,
+                                    **settings)
             except JointError as exc:
                 raise error(str(exc)) from None
         for w in caught:

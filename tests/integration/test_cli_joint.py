@@ -87,6 +87,28 @@ def test_compare_several_trials_needs_shared(trial_files, tmp_path):
                            str(tmp_path / "c")])
 
 
+def test_compare_several_trials_fits_each_as_prepared(trial_files, tmp_path, monkeypatch):
+    # The variants are fitted with each trial's own initial condition (here the declared
+    # release) and the model its preprocessing asks for, as `fit` with several trials
+    # does; before, `compare` left them to the fitting defaults.
+    import bayesbeam.comparison.joint as cj
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake(trials, model, variants, **kw):
+        seen.update(kw, model=model, n=len(trials))
+        raise Stop
+
+    monkeypatch.setattr(cj, "compare_joint", fake)
+    with pytest.raises(Stop):
+        _run(compare_cli, ["compare", *trial_files[:2], "--models", "viscous", "--shared",
+                           "E", "-o", str(tmp_path / "c")])
+    assert seen["initial"] == "release" and seen["model"] == "viscous" and seen["n"] == 2
+
+
 @pytest.mark.slow
 def test_compare_several_trials_ranks_sharing(trial_files, tmp_path, capsys):
     out = tmp_path / "cmp"
