@@ -26,7 +26,7 @@ from pathlib import Path
 
 from bayesbeam._util import SCHEMA_VERSION
 from bayesbeam.cli import options as opts
-from bayesbeam.cli.fit_joint import split_names
+from bayesbeam.cli.fit_joint import prepare_trials, split_names
 
 __all__ = ["run_joint"]
 
@@ -66,25 +66,7 @@ def run_joint(args: argparse.Namespace, models: list[str], error: type[Exception
     if not shared and not pooled:
         raise error("several trials: give --shared (e.g. --shared E) and/or --pooled; the "
                     "comparison is of what the trials share")
-    paths = list(args.trial)
-    trials, pres = [], []
-    for p in paths:
-        one = argparse.Namespace(**{**vars(args), "trial": p})
-        trial, pre = opts.prepare_trial(one, error, say=opts.say)
-        trials.append(trial)
-        pres.append(pre)
-    # As `fit` with several trials: the model each preprocessing asks for (a raw record's
-    # sensor offset), and each trial's own initial condition.
-    named = []
-    for m in models:
-        per = {pre.model_name(m) for pre in pres}
-        if len(per) != 1:
-            raise error(f"the preprocessing gives the trials different models {sorted(per)} "
-                        "(a sensor offset added to some); compare them with the same models")
-        named.append(per.pop())
-    models = named
-    per_trial = [pre.initial for pre in pres]
-    initial: str | list[str] = per_trial[0] if len(set(per_trial)) == 1 else per_trial
+    trials, _, models, initial = prepare_trials(args, models, error)
     variants = [(shared, pooled)]
     if pooled:
         variants.append((shared, ()))

@@ -29,6 +29,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 from bayesbeam._util import SCHEMA_VERSION
 from bayesbeam.cli import options as opts
@@ -41,6 +42,51 @@ def split_names(text: str | None) -> tuple[str, ...]:
     if not text:
         return ()
     return tuple(n.strip() for n in text.split(",") if n.strip())
+
+
+def prepare_trials(args: argparse.Namespace, models: list[str], error: type[Exception]
+                   ) -> tuple[list[Any], list[Any], list[str], str | list[str]]:
+    """Read and prepare the trials of a several-trial command (``fit``, ``compare``).
+
+    Each trial is preprocessed on its own (:func:`bayesbeam.cli.options.prepare_trial`).
+    Every model name becomes the one the preprocessing asks for (a raw record's sensor
+    offset), which must be the same for all trials; each trial keeps its own initial
+    condition (records of different length resolve different numbers of modes).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options; ``trial`` is the list of paths.
+    models : list of str
+        Model names as given.
+    error : type of Exception
+        The command's error class.
+
+    Returns
+    -------
+    trials, pres : list
+        The prepared trials and their preprocessing records.
+    models : list of str
+        The model names for these trials.
+    initial : str or list of str
+        One kind for all trials, or one per trial where they differ.
+    """
+    trials, pres = [], []
+    for p in args.trial:
+        one = argparse.Namespace(**{**vars(args), "trial": p})
+        trial, pre = opts.prepare_trial(one, error, say=opts.say)
+        trials.append(trial)
+        pres.append(pre)
+    named = []
+    for m in models:
+        per = {pre.model_name(m) for pre in pres}
+        if len(per) != 1:
+            raise error(f"the preprocessing gives the trials different models {sorted(per)} "
+                        "(a sensor offset added to some); use the same models for all")
+        named.append(per.pop())
+    per_trial = [pre.initial for pre in pres]
+    initial: str | list[str] = per_trial[0] if len(set(per_trial)) == 1 else per_trial
+    return trials, pres, named, initial
 
 
 def _file_label(label: str) -> str:
@@ -80,25 +126,12 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
     paths = list(args.trial)
     if len({p.resolve() for p in paths}) != len(paths):
         raise error(f"a trial is given twice in {[str(p) for p in paths]}; give each once")
-    trials, pres, models = [], [], set()
-    for p in paths:
-        one = argparse.Namespace(**{**vars(args), "trial": p})
-        trial, pre = opts.prepare_trial(one, error, say=opts.say)
-        trials.append(trial)
-        pres.append(pre)
-        models.add(pre.model_name(args.model))
-    if len(models) != 1:
-        raise error(f"the preprocessing gives the trials different models {sorted(models)} "
-                    "(a sensor offset added to some); fit them with the same --model")
-    model = parse_model(models.pop())
-    # Records of different length resolve different numbers of modes: each keeps its own
-    # initial condition (free amplitudes of its modes in band).
-    per_trial = [pre.initial for pre in pres]
-    initial: str | list[str] = per_trial[0] if len(set(per_trial)) == 1 else per_trial
+    trials, pres, named, initial = prepare_trials(args, [args.model], error)
+    model = parse_model(named[0])
     shared, pooled = split_names(args.shared), split_names(args.pooled)
     overrides = None
     if args.priors is not None:  # the file's entries, applied to every trial
-        base = default_priors(trials[0], model, n_elements=args.elements, initial=per_trial[0])
+        base = default_priors(trials[0], model, n_elements=args.elements, initial=pres[0].initial)
         full = PriorSet.from_toml(args.priors, base=base)
         overrides = {n: full[n] for n in full if full[n] != base[n]}
     outdir = Path(args.outdir)

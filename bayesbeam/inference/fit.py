@@ -41,7 +41,7 @@ from bayesbeam.inference.starts import data_features, neutral_value, physics_sta
 from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 from bayesbeam.physics.propagate import single_blas_thread
 from bayesbeam.stats.numdiff import fd_hessian
-from bayesbeam.stats.sampling import MOVE_SETS, Chain, init_walkers
+from bayesbeam.stats.sampling import Chain, init_walkers, named_moves
 from bayesbeam.trials.modal_id import first_mode_decay_rate
 from bayesbeam.trials.trial import Trial
 
@@ -441,9 +441,11 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     bad = sorted(set(opts) - set(_SAMPLER_OPTIONS))
     if bad:
         raise FitError(f"unknown sampler_options {bad}; allowed: {list(_SAMPLER_OPTIONS)}")
-    if "moves" in opts and opts["moves"] not in MOVE_SETS:
-        raise FitError(f"unknown sampler_options moves {opts['moves']!r}; choose one of "
-                       f"{sorted(MOVE_SETS)}")
+    if "moves" in opts:  # checked here, before the expensive MAP search
+        try:
+            named_moves(opts["moves"])
+        except ValueError as exc:
+            raise FitError(f"sampler_options: {exc}") from None
     return opts
 
 

@@ -153,15 +153,13 @@ class JointFit:
         # Every trial's names (amplitudes differ where the trials' initial kinds do);
         # NaN where a trial has no such parameter.
         base = dict.fromkeys(n for p in pb.problems for n in p.names)
+        thetas = [v.theta_samples() for v in self.trials]  # once per trial
         for n in base:
             if n in pb.shared:
                 continue
-            stack = []
-            for p, v in zip(pb.problems, self.trials, strict=True):
-                th = v.theta_samples()
-                col = (th[..., p.names.index(n)] if n in p.names
-                       else np.full(th.shape[:-1], np.nan))
-                stack.append(np.swapaxes(col, 0, 1))
+            stack = [np.swapaxes(th[..., p.names.index(n)] if n in p.names
+                                 else np.full(th.shape[:-1], np.nan), 0, 1)
+                     for p, th in zip(pb.problems, thetas, strict=True)]
             post[n] = np.stack(stack, axis=-1)
         for n in next(iter(self.trials)).derived if self.trials else ():
             post[n] = np.stack([np.swapaxes(v.derived[n], 0, 1) for v in self.trials], axis=-1)
