@@ -4,8 +4,10 @@
 ``viscous+kv``, ``viscous+sh``) to every shipped example trial (``data/`` in the
 repository, ``bayesbeam/examples`` when installed; three carbon-fibre beams, five release
 tests each; see ``data/README.md``), ranks them per trial by log evidence
-(:func:`bayesbeam.comparison.compare.compare_scores`), diagnoses what the models get wrong on one
-trial (:func:`bayesbeam.diagnosis.diagnose.diagnose`), prints a summary table per beam and model
+(:func:`bayesbeam.comparison.compare.compare_scores`), fits each beam's trials jointly with
+the model they favour (E shared, the damping pooled: :mod:`bayesbeam.jobs.joint_task`),
+diagnoses what the models get wrong on one trial
+(:func:`bayesbeam.diagnosis.diagnose.diagnose`), prints a summary table per beam and model
 and writes a self-contained HTML report (:func:`bayesbeam.report.html.write_report`).
 
 The fits run through :mod:`bayesbeam.jobs.executor` (a process pool with ``jobs``, or a Dask
@@ -32,6 +34,7 @@ records them for the whole run.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import platform
@@ -51,6 +54,7 @@ from bayesbeam._util import (
     write_text_atomic,
 )
 from bayesbeam.inference.settings import FIT_DEFAULTS
+from bayesbeam.jobs.joint_task import format_joint_table, run_joint_task
 from bayesbeam.jobs.summary import beam_of, beam_summary, conclusions_text, format_table
 
 __all__ = [
@@ -290,17 +294,58 @@ def _diagnosis_spec(trial_file: Path, seed: int, settings: Mapping[str, Any]
     key_src = {k: v for k, v in spec.items() if k != "trial_file"}
     key_src["data_sha256"] = trial.sha256
     key_src["toml_sha256"] = file_sha256(trial_file)
-    spec["key"] = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()
+    spec["key"] = _key(key_src)
     return spec, trial
 
 
-def _diagnosis_cached(folder: Path, key: str) -> dict[str, Any] | None:
+def _key(src: Mapping[str, Any]) -> str:
+    """Cache key of a task: the SHA-256 of its JSON description (data by their SHA-256s)."""
+    return hashlib.sha256(json.dumps(src, sort_keys=True).encode()).hexdigest()
+
+
+def _cached(folder: Path, key: str, name: str) -> dict[str, Any] | None:
+    """Return the record ``name`` of a task folder whose ``task.json`` has ``key``, or None."""
     try:
         if json.loads((folder / "task.json").read_text("utf-8")).get("key") != key:
             return None
-        return json.loads((folder / "diagnosis.json").read_text("utf-8"))
+        return json.loads((folder / name).read_text("utf-8"))
     except (OSError, json.JSONDecodeError):
         return None
+
+
+def _joint_specs(files: Sequence[Path], rows: Sequence[Mapping[str, Any]],
+                 models: Sequence[str], seed: int, settings: Mapping[str, Any]
+                 ) -> list[tuple[dict[str, Any], list[Any]]]:
+    """One joint-fit task per beam with at least two trials: (spec with its key, trials).
+
+    The model is :func:`~bayesbeam.jobs.joint_task.joint_model`'s choice from the
+    per-trial evidence; the fit settings are the per-trial fits' except the walker
+    count, which the joint fit sizes to its dimension.
+    """
+    from bayesbeam.inference.settings import FitSettings
+    from bayesbeam.jobs.joint_task import joint_model, pooled_names
+    from bayesbeam.trials.io import read_trial
+
+    by_beam: dict[str, list[Path]] = {}
+    for f in files:
+        by_beam.setdefault(beam_of(f.stem), []).append(Path(f).resolve())
+    fit_keys = [f.name for f in dataclasses.fields(FitSettings)]
+    fit_settings = {k: settings[k] for k in fit_keys if k in settings}
+    fit_settings["nwalkers"] = None
+    out = []
+    for beam, paths in by_beam.items():
+        model = joint_model(rows, beam, models)
+        if len(paths) < 2 or model is None:
+            continue
+        trials = [read_trial(p) for p in paths]
+        spec = {"beam": beam, "model": model, "shared": ["E"],
+                "pooled": list(pooled_names(model)), "seed": int(seed),
+                "settings": fit_settings, "trial_files": [str(p) for p in paths]}
+        spec["key"] = _key({**{k: v for k, v in spec.items() if k != "trial_files"},
+                            "data_sha256": [t.sha256 for t in trials],
+                            "toml_sha256": [file_sha256(p) for p in paths]})
+        out.append((spec, trials))
+    return out
 
 
 def _write_files(folder: Path, files: Mapping[str, bytes], task: Mapping[str, Any]) -> None:
@@ -376,6 +421,9 @@ class Replication:
         ``{trial: {model: score.json record}}``.
     diagnosis : dict or None
         The diagnosis JSON record, if one was run.
+    joint : list of dict
+        Per beam with at least two trials, the joint fit's record
+        (:func:`bayesbeam.jobs.joint_task.joint_record`); empty if none was run.
     report : Path or None
         The HTML report.
     seconds : dict
@@ -391,6 +439,7 @@ class Replication:
     comparisons: dict
     scores: dict
     diagnosis: dict | None
+    joint: list
     report: Path | None
     seconds: dict
     record: dict
@@ -409,6 +458,7 @@ def run_replication(
     scheduler: Any = None,
     plots: str = "first",
     diagnosis: Mapping[str, Any] | bool | None = True,
+    joint: bool = True,
     report: bool = True,
     force: bool = False,
     progress: bool | Callable[[str], None] = True,
@@ -438,6 +488,10 @@ def run_replication(
     diagnosis : mapping, bool or None
         True: :data:`DIAGNOSIS_SETTINGS`; a mapping overrides them; False/None: no
         diagnosis. Skipped (with a message) if its trial is not among the trials run.
+    joint : bool
+        Fit each beam's trials jointly (:mod:`bayesbeam.jobs.joint_task`; beams with at
+        least two trials): E shared, the damping pooled, the model the per-trial
+        evidence favours. Run beside the diagnosis, cached like the fits.
     report : bool
         Write ``report.html``.
     force : bool
@@ -495,12 +549,30 @@ def run_replication(
         diag_future = None
         if diag_spec is not None:
             diag_dir = outdir / f"diagnosis-{Path(diag_spec['trial_file']).stem}"
-            diag_record = None if force else _diagnosis_cached(diag_dir, diag_spec["key"])
+            diag_record = None if force else _cached(diag_dir, diag_spec["key"],
+                                                     "diagnosis.json")
             if diag_record is None and ex is not None:
                 # Submitted first: the longest task starts while the fits fill the other slots.
                 diag_future = ex.submit(run_diagnosis_task, {**diag_spec, "trial": diag_trial})
         outcomes = run_fits(tasks, outdir, executor=ex, jobs=jobs, force=force,
                             progress=progress, stage="demo fits")
+        # Rank the models per trial (cached and fresh results alike): the joint fits
+        # take the model the evidence favours, and run beside the diagnosis.
+        t_comp0 = time.perf_counter()
+        by_trial: dict[str, list[Any]] = {}
+        for o in outcomes:
+            by_trial.setdefault(o.task.trial_name, []).append(o)
+        comparisons: dict[str, dict[str, Any]] = {}
+        scores: dict[str, dict[str, Any]] = {}
+        for tname, outs in by_trial.items():
+            comp = compare_scores([load_score(o.path) for o in outs])
+            comp.save(outdir / tname, fits=False)
+            comparisons[tname] = comp.to_json_dict()
+            scores[tname] = {o.task.model: o.score for o in outs}
+        rows = beam_summary(scores, comparisons, [m for m in models])
+        t_comp = time.perf_counter() - t_comp0
+        joint_runs = _start_joint(ex, files, rows, models, seed, base, outdir, force, say
+                                  ) if joint else []
         if diag_spec is not None and diag_record is None:
             if diag_future is not None:
                 dfiles, diag_record, dsec = diag_future.result()
@@ -513,37 +585,31 @@ def run_replication(
                 f"{diag_record.get('named_causes') or 'none'} ({dsec:.0f} s)")
         elif diag_record is not None:
             say(f"diagnosis of {diag_record.get('trial')}: cached")
+        joint_records = _finish_joint(joint_runs, outdir, say)
     t_fits = time.perf_counter()
 
-    # Rank the models per trial (cached and fresh results alike).
-    by_trial: dict[str, list[Any]] = {}
-    for o in outcomes:
-        by_trial.setdefault(o.task.trial_name, []).append(o)
-    comparisons: dict[str, dict[str, Any]] = {}
-    scores: dict[str, dict[str, Any]] = {}
+    t_plot0 = time.perf_counter()
     for tname, outs in by_trial.items():
-        comp = compare_scores([load_score(o.path) for o in outs])
-        comp.save(outdir / tname, fits=False)
-        comparisons[tname] = comp.to_json_dict()
-        scores[tname] = {o.task.model: o.score for o in outs}
         if plots == "all" or (plots == "first"
                               and first_of_beam[beam_of(tname)].stem == tname):
             _overlay(outs[0].task.trial, outdir / tname, models,
                      int(base.get("plot_dpi", 90)))
-    t_comp = time.perf_counter()
+    t_comp += time.perf_counter() - t_plot0
 
-    rows = beam_summary(scores, comparisons, [m for m in models])
     table = format_table(rows)
     truth = None
     tpath = find_data(data_dir) / "truth.toml"
     if tpath.is_file():
         truth = read_toml(tpath, what="truth file", error=DemoError)
     conclusions = conclusions_text(rows, truth)
+    joint_table = format_joint_table(joint_records, rows) if joint_records else ""
     task_cpu = sum(float(o.score.get("task_cpu_seconds") or 0.0) for o in outcomes
                    if not o.cached)
     record = {
         "table_text": table,
         "conclusions": conclusions,
+        "joint_table_text": joint_table or None,
+        "joint": joint_records,
         "settings_text": "Fit settings: " + ", ".join(
             f"{k}={v}" for k, v in base.items() if k != "plots")
         + f"; figures for {_FIGURES[plots]}.",
@@ -566,8 +632,8 @@ def run_replication(
                        "platform": platform.platform(), "executor":
                        str(scheduler) if scheduler else f"{jobs} local process(es)"},
         "timing": {
-            "fits_and_diagnosis_s": round(t_fits - t_start, 1),
-            "comparisons_s": round(t_comp - t_fits, 1),
+            "fits_and_diagnosis_s": round(t_fits - t_start - t_comp, 1),
+            "comparisons_s": round(t_comp, 1),
             "fits_computed": sum(not o.cached for o in outcomes),
             "fits_cached": sum(o.cached for o in outcomes),
             "fit_cpu_s": round(task_cpu, 1),
@@ -577,7 +643,8 @@ def run_replication(
     }
     rep_path = None
     t_rep0 = time.perf_counter()
-    write_text_atomic(outdir / "replication.txt", table + "\n\n" + conclusions + "\n")
+    write_text_atomic(outdir / "replication.txt", table + "\n\n" + conclusions + "\n"
+                      + (f"\n{joint_table}\n" if joint_table else ""))
     _write_json(outdir / "replication.json", record)
     if report:
         from bayesbeam.report.html import write_report
@@ -585,14 +652,55 @@ def run_replication(
         rep_path = write_report(outdir, title="bayesbeam: source replication on the shipped "
                                               "data")
     t_end = time.perf_counter()
-    seconds = {"fits": t_fits - t_start, "comparisons": t_comp - t_fits,
+    seconds = {"fits": t_fits - t_start - t_comp, "comparisons": t_comp,
                "report": t_end - t_rep0, "total": t_end - t_start}
     record["timing"].update({"report_s": round(seconds["report"], 1),
                              "total_s": round(seconds["total"], 1)})
     _write_json(outdir / "replication.json", record)
     return Replication(outdir=outdir, rows=rows, table=table, comparisons=comparisons,
-                       scores=scores, diagnosis=diag_record, report=rep_path, seconds=seconds,
+                       scores=scores, diagnosis=diag_record, joint=joint_records,
+                       report=rep_path, seconds=seconds,
                        record=record)
+
+
+def _start_joint(ex: Any, files: Sequence[Path], rows: Sequence[Mapping[str, Any]],
+                 models: Sequence[str], seed: int, settings: Mapping[str, Any], outdir: Path,
+                 force: bool, say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """Submit the joint fits that are not cached (run later, serially, without executor)."""
+    runs = []
+    for spec, trials in _joint_specs(files, rows, models, seed, settings):
+        folder = outdir / f"joint-{spec['beam']}"
+        rec = None if force else _cached(folder, spec["key"], "joint.json")
+        task = {**spec, "trials": trials}
+        fut = ex.submit(run_joint_task, task) if rec is None and ex is not None else None
+        if rec is None:
+            say(f"joint fit of {spec['beam']}: {spec['model']} on {len(trials)} trials, "
+                f"E shared, pooled {', '.join(spec['pooled'])}"
+                + ("" if fut is not None else " (serial)"))
+        runs.append({"spec": spec, "task": task, "folder": folder, "record": rec,
+                     "future": fut})
+    return runs
+
+
+def _finish_joint(runs: Sequence[Mapping[str, Any]], outdir: Path,
+                  say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """Wait for (or run) the joint fits, write their folders, return their records."""
+    records = []
+    for run in runs:
+        spec, rec = run["spec"], run["record"]
+        if rec is not None:
+            say(f"joint fit of {spec['beam']}: cached")
+        else:
+            files, rec, sec = (run["future"].result() if run["future"] is not None
+                               else run_joint_task(run["task"]))
+            files = {**files, "joint.json": (json.dumps(finite_json(rec), indent=2,
+                                                        allow_nan=False) + "\n").encode()}
+            _write_files(run["folder"], files, {"key": spec["key"], "spec": spec,
+                                                "seconds": sec})
+            say(f"joint fit of {spec['beam']}: done ({sec:.0f} s"
+                + ("" if rec["converged"] else ", not converged") + ")")
+        records.append(rec)
+    return records
 
 
 def _ignore(line: str) -> None:

@@ -221,25 +221,44 @@ def _invariant_reduction(
     B, n = A.shape[0], K.size
     ok = np.ones(B, dtype=bool)
     with np.errstate(all="ignore"):
-        Ai = _modal_inverse(A22)
-        AiA21, A12Ai = Ai @ A21, A12 @ Ai
-        X, Y = -AiA21, A12Ai
+        P, wi = _modal_inverse_blocks(A22)
+        AiA21, A12Ai = _inverse_left(P, wi, A21), _inverse_right(P, wi, A12)
+        X, Y = -AiA21, A12Ai.copy()  # updated in place below
         # The iteration in factored form: X A11 + X A12 X = X (A11 + A12 X) and
-        # A11 Y - Y A21 Y = (A11 - Y A21) Y, so that each step multiplies Ai by a thin
-        # (s - 2k) x 2k block only (the state's full dimension never appears squared).
+        # A11 Y - Y A21 Y = (A11 - Y A21) Y, so that each step multiplies A22⁻¹ by a thin
+        # (s - 2k) x 2k block only (the state's full dimension never appears squared),
+        # and through its blocks (_inverse_left/_right): one product with the dense
+        # (s/2 - k)² block instead of the (s - 2k)² inverse, 4x fewer operations.
+        # A set stops iterating once it has converged (or failed): its result is then
+        # the same whatever the other sets of its batch (a batch split over threads
+        # gives the values of the whole), and the remaining steps cost only the rest.
+        done = np.zeros(B, dtype=bool)
+        act = np.arange(B)
+        blocks = (P, wi, A11, A12, A21, AiA21, A12Ai)
         for _ in range(MAX_ITERATIONS):
-            Xn = (Ai @ X) @ (A11 + A12 @ X) - AiA21
-            Yn = (A11 - Y @ A21) @ (Y @ Ai) + A12Ai
-            dx = _rel_change(Xn, X)
-            dy = _rel_change(Yn, Y)
-            X, Y = Xn, Yn
-            done = (dx <= TOLERANCE) & (dy <= TOLERANCE)
-            if np.all(done | ~np.isfinite(dx) | ~np.isfinite(dy)):
+            Pa, wa, A11a, A12a, A21a, AiA21a, A12Aia = (
+                blocks if act.size == B else tuple(v[act] for v in blocks))
+            Xa, Ya = X[act], Y[act]
+            Xn = _inverse_left(Pa, wa, Xa) @ (A11a + A12a @ Xa) - AiA21a
+            Yn = (A11a - Ya @ A21a) @ _inverse_right(Pa, wa, Ya) + A12Aia
+            dx = _rel_change(Xn, Xa)
+            dy = _rel_change(Yn, Ya)
+            X[act], Y[act] = Xn, Yn
+            conv = (dx <= TOLERANCE) & (dy <= TOLERANCE)
+            done[act[conv]] = True
+            act = act[~conv & np.isfinite(dx) & np.isfinite(dy)]
+            if act.size == 0:
                 break
         ok &= done
         M = A11 + A12 @ X
         rhs = z0[:, K] - np.einsum("bij,bj->bi", Y, z0[:, D])
-        a = np.linalg.solve(np.eye(n) - Y @ X, rhs[..., None])[..., 0]
+        IYX = np.eye(n) - Y @ X
+        # A set that did not converge (it diverged: huge or non-finite blocks, where
+        # I - Y X can be exactly singular) is flagged and solved as the identity, so
+        # that LAPACK does not stop the batch.
+        ok &= np.isfinite(IYX).all(axis=(1, 2)) & np.isfinite(rhs).all(axis=1)
+        IYX[~ok] = np.eye(n)
+        a = np.linalg.solve(IYX, np.where(ok[:, None], rhs, 0.0)[..., None])[..., 0]
         g = h[:, K] + np.einsum("bj,bjk->bk", h[:, D], X)
         Pz0 = np.zeros_like(z0)
         Pz0[:, K] = a
@@ -279,12 +298,35 @@ def _modal_inverse(A: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (B, 2r, 2r)
     """
-    r = A.shape[1] // 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wi = 1.0 / np.diagonal(A[:, :r, r:], axis1=1, axis2=2)  # (B, r): 1/ω
+    P, wi = _modal_inverse_blocks(A)
+    r = wi.shape[1]
     out = np.zeros_like(A)
-    out[:, :r, :r] = wi[:, :, None] * A[:, r:, r:] * wi[:, None, :]  # -Ω⁻¹ C Ω⁻¹
+    out[:, :r, :r] = P
     i = np.arange(r)
     out[:, i, r + i] = -wi
     out[:, r + i, i] = wi
     return out
+
+
+def _modal_inverse_blocks(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the blocks of :func:`_modal_inverse`: ``P = -Ω⁻¹ C Ω⁻¹`` (B, r, r), ``1/ω`` (B, r)."""
+    r = A.shape[1] // 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wi = 1.0 / np.diagonal(A[:, :r, r:], axis1=1, axis2=2)  # (B, r): 1/ω
+        # A[:, r:, r:] is -C, so this is -Ω⁻¹ C Ω⁻¹.
+        P = wi[:, :, None] * A[:, r:, r:] * wi[:, None, :]
+    return P, wi
+
+
+def _inverse_left(P: np.ndarray, wi: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """``A⁻¹ Z`` from the blocks of :func:`_modal_inverse_blocks`; Z of shape (B, 2r, n)."""
+    r = wi.shape[1]
+    top, bot = Z[:, :r], Z[:, r:]
+    return np.concatenate([P @ top - wi[:, :, None] * bot, wi[:, :, None] * top], axis=1)
+
+
+def _inverse_right(P: np.ndarray, wi: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """``Z A⁻¹`` from the blocks of :func:`_modal_inverse_blocks`; Z of shape (B, n, 2r)."""
+    r = wi.shape[1]
+    left, right = Z[:, :, :r], Z[:, :, r:]
+    return np.concatenate([left @ P + right * wi[:, None, :], -left * wi[:, None, :]], axis=2)

@@ -356,6 +356,9 @@ def _replication_section(rep: dict) -> str:
     for key in ("conclusions", "settings_text"):
         if rep.get(key):
             parts.append("<p>" + _esc(rep[key]) + "</p>")
+    if rep.get("joint_table_text"):
+        parts.append("<h3>Each beam's trials fitted jointly</h3><pre>"
+                     + _esc(rep["joint_table_text"]) + "</pre>")
     timing = rep.get("timing")
     if timing:
         parts.append("<p class=\"muted\">Timing: " + _esc(json.dumps(timing, default=str))

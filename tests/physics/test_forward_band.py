@@ -16,7 +16,14 @@ import pytest
 from bayesbeam.physics import propagate
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import Forward, ForwardError
-from bayesbeam.physics.sensor import _eigen_projection, _modal_inverse, band_limit
+from bayesbeam.physics.sensor import (
+    _eigen_projection,
+    _inverse_left,
+    _inverse_right,
+    _modal_inverse,
+    _modal_inverse_blocks,
+    band_limit,
+)
 
 L, W, TH, RHO = 0.4, 0.0508, 0.002, 2700.0
 E = 70e9
@@ -135,3 +142,12 @@ def test_closed_form_inverse_of_a_modal_state_matrix():
     scale = np.abs(A).max(axis=(1, 2)) * np.abs(_modal_inverse(A)).max(axis=(1, 2))
     # Round-off of a product of two 2m-square matrices: ~2m ulp of the entries' scale.
     assert np.max(np.abs(P - np.eye(2 * m)) / scale[:, None, None]) < 4 * m * 2.3e-16
+    # Applied through its blocks (the invariant-subspace iteration's products): the
+    # products with the dense inverse, to the round-off of a length-2m dot product.
+    Pb, wi = _modal_inverse_blocks(A)
+    Z = rng.standard_normal((3, 2 * m, 4))
+    dense = _modal_inverse(A) @ Z
+    tol = 4 * m * 2.3e-16 * np.abs(_modal_inverse(A)).max() * np.abs(Z).max()
+    assert np.max(np.abs(_inverse_left(Pb, wi, Z) - dense)) < tol
+    Zt = np.swapaxes(Z, 1, 2)
+    assert np.max(np.abs(_inverse_right(Pb, wi, Zt) - Zt @ _modal_inverse(A))) < tol
