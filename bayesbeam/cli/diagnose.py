@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -201,17 +200,11 @@ def run(args: argparse.Namespace) -> int:
     outdir.mkdir(parents=True, exist_ok=True)
     # --jobs/--scheduler: each round's candidate searches and sampling runs in parallel
     # (the same numbers as serial).
-    # A round that samples one model alone splits its walkers over this process's threads,
-    # one per local worker (which idle meanwhile); on a cluster the local cores are not
-    # the workers', so one.
-    jobs = 1 if args.jobs is None else int(args.jobs)
-    threads = 1 if args.scheduler else (jobs if jobs > 0 else os.cpu_count() or 1)
     with one_blas_thread(), make_executor(args.jobs, args.scheduler) as executor:
         d = diagnose(
             trial, model, max_rounds=args.max_rounds,
             candidates=tuple(cands) if cands else CATALOGUE, initial=pre.initial,
-            priors=priors, progress=opts.say, executor=executor, threads=threads,
-            **opts.fit_settings(args),
+            priors=priors, progress=opts.say, executor=executor, **opts.fit_settings(args),
         )
     record = d.to_json_dict()
     record["preprocessing"] = pre.to_json_dict()

@@ -298,7 +298,6 @@ def diagnose(
     signatures: bool = True,
     progress: Callable[[str], None] | None = None,
     executor: Any = None,
-    threads: int = 1,
 ) -> Diagnosis:
     """Show what the baseline gets wrong, name the causes, extend the model, measure the gain.
 
@@ -349,12 +348,6 @@ def diagnose(
         cluster). Each round's candidate MAP searches, and its sampling runs, then run
         in parallel; each job carries the trial's data, its model, starts and seed, so
         the diagnosis is bitwise the serial one. None: everything in this process.
-    threads : int
-        Threads of a sampling run that runs alone (one model to confirm in a round):
-        its walkers' batches are split over them
-        (:func:`~bayesbeam.stats.threads.batch_threads`: the log densities to
-        rounding, so the chain of one thread but for a last-bit tie). Give the local
-        executor's worker count, whose processes idle meanwhile.
 
     Returns
     -------
@@ -380,7 +373,7 @@ def diagnose(
                   sampler={"nwalkers": nwalkers, "target_ess": target_ess,
                            "min_steps": min_steps, "max_steps": max_steps,
                            "loo_draws": loo_draws},
-                  notes=notes, log=log, threads=threads)
+                  notes=notes, log=log)
     cur = eng.state(model)
     eng.optimise(cur, eng.starts(cur, None))
     if refine_mesh:

@@ -73,9 +73,8 @@ class _Engine:
 
     def __init__(self, trial: Trial, *, seed: int, n_elements: int, initial: str,
                  priors: Mapping[str, Any] | None, sampler: Mapping[str, Any],
-                 notes: list[str], log: Callable[[str], None], threads: int = 1) -> None:
+                 notes: list[str], log: Callable[[str], None]) -> None:
         self.trial = trial
-        self.threads = threads  # of a sampling run that runs alone (confirm_many)
         self.seed = seed
         self.n_elements = n_elements
         self.initial = initial
@@ -272,8 +271,7 @@ class _Engine:
     def _sample_and_score(self, st: _State, seed: int, notes: list[str]) -> Any:
         from bayesbeam.comparison.scoring import evaluate
 
-        res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes,
-                      threads=self.threads)
+        res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes)
         return evaluate(self.trial, st.problem.model, seed=seed, result=res,
                         problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]))
 
@@ -388,15 +386,13 @@ def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:
 
 
 def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any],
-            notes: list[str], threads: int = 1) -> Any:
+            notes: list[str]) -> Any:
     """Sample with emcee from a ball around the MAP (:func:`~.fit.walker_scale`).
 
     The ensemble moves in the coordinates of :class:`~.fit.SamplerCoordinates`, as in
     :func:`~.fit.fit`: the damping laws' log total first-mode damping and log ratios,
     where the viscous/KV trade-off that a record fixes only in total is a straight
     valley instead of a curved one (unit Jacobian: the density is unchanged).
-    ``threads``: the walkers' batches evaluated in that many threads
-    (:func:`~bayesbeam.stats.threads.batch_threads`; the values to rounding).
     """
     from bayesbeam.inference import fit as fitmod
     from bayesbeam.inference.results import FitResult, make_provenance
@@ -412,7 +408,7 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
         chain = sample_in_coordinates(
-            pb.log_prob, SamplerCoordinates(pb), u0, seed=seed, threads=threads,
+            pb.log_prob, SamplerCoordinates(pb), u0, seed=seed,
             max_steps=int(settings["max_steps"]), min_steps=int(settings["min_steps"]),
             target_ess=float(settings["target_ess"]), names=pb.names, progress=False,
             # As in fit(): a discarded first run returns stranded walkers.

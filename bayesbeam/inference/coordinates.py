@@ -185,8 +185,7 @@ def chain_in_u(chain: Chain, u_samples: np.ndarray, log_prob: np.ndarray | None 
 
 
 def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: Coordinates,
-                          u0: np.ndarray, *, moves: str = "de", threads: int = 1,
-                          **kwargs: Any) -> Chain:
+                          u0: np.ndarray, *, moves: str = "de", **kwargs: Any) -> Chain:
     """Run emcee (:func:`~bayesbeam.stats.sampling.run_emcee`) in ``coords``.
 
     The walkers start at ``coords.to_v(u0)`` and move on ``log_prob(u(v)) + log|∂u/∂v|``
@@ -204,10 +203,6 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
         Initial walkers in ``u``.
     moves : str
         A name of :data:`~bayesbeam.stats.sampling.MOVE_SETS`.
-    threads : int
-        Threads over which each batch of walkers is split
-        (:func:`~bayesbeam.stats.threads.batch_threads`: the same log densities to
-        rounding); more than one where this run has the machine's cores to itself.
     **kwargs
         Passed to :func:`~bayesbeam.stats.sampling.run_emcee` (``seed``, ``max_steps``,
         ``target_ess``, ``names``, ``preburn``, ...).
@@ -216,14 +211,10 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
     -------
     Chain
     """
-    from bayesbeam.stats.threads import batch_threads
+    def log_prob_v(V: np.ndarray) -> np.ndarray:
+        return log_prob(coords.to_u(V)) + coords.log_jacobian(V)
 
-    with batch_threads(log_prob, threads) as lp:
-
-        def log_prob_v(V: np.ndarray) -> np.ndarray:
-            return lp(coords.to_u(V)) + coords.log_jacobian(V)
-
-        chain = run_emcee(log_prob_v, coords.to_v(u0), moves=named_moves(moves), **kwargs)
+    chain = run_emcee(log_prob_v, coords.to_v(u0), moves=named_moves(moves), **kwargs)
     if coords.identity:
         return chain
     return chain_in_u(chain, coords.to_u(chain.samples),

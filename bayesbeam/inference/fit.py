@@ -433,7 +433,7 @@ def find_map(
 
 
 _SAMPLER_OPTIONS = ("n_tau", "tau_rtol", "check_every", "burn_in_taus", "thin",
-                    "checkpoint_seconds", "moves", "threads")
+                    "checkpoint_seconds", "moves")
 
 
 def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -446,9 +446,6 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
             named_moves(opts["moves"])
         except ValueError as exc:
             raise FitError(f"sampler_options: {exc}") from None
-    t = opts.get("threads", 1)
-    if isinstance(t, bool) or not isinstance(t, int | np.integer) or t < 1:
-        raise FitError(f"sampler_options: threads must be a positive integer, got {t!r}")
     return opts
 
 
@@ -530,10 +527,7 @@ def fit(
         (``n_tau``, ``tau_rtol``, ``check_every``, ``burn_in_taus``, ``thin``,
         ``checkpoint_seconds``), e.g. a cheaper stopping rule for batch studies, and
         ``moves``: the proposal mixture, a name of
-        :data:`~bayesbeam.stats.sampling.MOVE_SETS` (default ``"de"``), and
-        ``threads``: each batch of walkers split over that many threads (default 1;
-        :func:`~bayesbeam.stats.threads.batch_threads`), for a fit that has the
-        machine's cores to itself.
+        :data:`~bayesbeam.stats.sampling.MOVE_SETS` (default ``"de"``).
 
     Returns
     -------

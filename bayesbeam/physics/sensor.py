@@ -229,9 +229,9 @@ def _invariant_reduction(
         # (s - 2k) x 2k block only (the state's full dimension never appears squared),
         # and through its blocks (_inverse_left/_right): one product with the dense
         # (s/2 - k)² block instead of the (s - 2k)² inverse, 4x fewer operations.
-        # A set stops iterating once it has converged (or failed): its result is then
-        # the same whatever the other sets of its batch (a batch split over threads
-        # gives the values of the whole), and the remaining steps cost only the rest.
+        # A set stops iterating once it has converged (or failed): its iterates do not
+        # depend on when the other sets of its batch converge, and the remaining steps
+        # cost only the sets still iterating.
         done = np.zeros(B, dtype=bool)
         act = np.arange(B)
         blocks = (P, wi, A11, A12, A21, AiA21, A12Ai)

@@ -197,9 +197,6 @@ def test_unknown_sampler_option_is_an_error(base):
         fit(tr, "viscous", n_elements=NE, sampler_options={"tau_tol": 1})
     with pytest.raises(ValueError, match="moves 'hmc'; choose one of"):
         fit(tr, "viscous", n_elements=NE, sampler_options={"moves": "hmc"})
-    for bad in (0, 1.5, True):
-        with pytest.raises(ValueError, match="threads must be a positive integer"):
-            fit(tr, "viscous", n_elements=NE, sampler_options={"threads": bad})
 
 
 def _cli(argv):
@@ -406,18 +403,3 @@ def test_find_map_places_an_added_mass_from_the_records_own_modes():
     # the mass) is far inside them; the wrong branch is outside.
     assert x["added_mass_position"] / beam.length == pytest.approx(0.85, abs=0.01)
     assert x["added_mass"] / mass == pytest.approx(1.0, rel=0.05)
-
-
-def test_threads_give_the_one_thread_chain():
-    # The walkers' batches split over two threads: the log densities agree to rounding
-    # (tests/stats/test_threads.py), so with the same seed every accept/reject decision
-    # is the same (a flip needs a uniform draw within ~1e-12 of the acceptance
-    # probability) and the chains agree to rounding.
-    tr, _ = _trial("viscous", {"gamma": _gamma(_beam(), 0.02)})
-    with warnings.catch_warnings():
-        # Convergence is not what is compared here.
-        warnings.simplefilter("ignore", NotConvergedWarning)
-        one = _fit(tr, "viscous", max_steps=300)
-        two = _fit(tr, "viscous", max_steps=300, sampler_options={**FAST, "threads": 2})
-    assert one.chain.samples.shape == two.chain.samples.shape
-    np.testing.assert_allclose(two.chain.samples, one.chain.samples, rtol=1e-9, atol=0)
