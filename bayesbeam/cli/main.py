@@ -35,7 +35,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import SCHEMA_VERSION
+from bayesbeam._util import SCHEMA_VERSION, finite_json
 from bayesbeam.cli import options as opts
 
 __all__ = ["EXIT", "main"]
@@ -64,7 +64,10 @@ def _parse_sets(items: Sequence[str]) -> dict[str, float]:
 
 def _emit(args: argparse.Namespace, payload: dict[str, Any], text: str) -> None:
     if args.json:
-        print(json.dumps({"schema_version": SCHEMA_VERSION, **payload}, indent=2, default=float))
+        # Strict JSON: a NaN (e.g. the bench's band-limited row has no difference to the
+        # full propagation) becomes null.
+        print(json.dumps(finite_json({"schema_version": SCHEMA_VERSION, **payload}), indent=2,
+                         default=float, allow_nan=False))
     else:
         print(text)
 
