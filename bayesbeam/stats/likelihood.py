@@ -138,19 +138,21 @@ def iid_loglik(r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return np.where(ok, ll, -np.inf)
 
 
-def _lag_powers(
+def _lag_table(
     rho: np.ndarray, times: np.ndarray | None, dt_ref: float | None, T: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-step correlations phi_t and innovation variance factors 1 - phi_t^2.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """Lag correlations and innovation variance factors per distinct time step.
 
-    Returns phi (..., T-1), one_minus_phi2 (..., T-1) and the support mask (...).
+    Returns phi (..., K), one_minus_phi2 (..., K), the index (T-1,) of each step's
+    entry (None for uniform stamps: K = 1), the count of each distinct step (K,) and
+    the support mask (...). A record with a few gaps has a few distinct steps: the
+    powers are taken once per step value, not once per sample.
     """
     rho = rho[..., None]
     if times is None:
         ok = np.abs(rho[..., 0]) < 1
-        phi = np.broadcast_to(rho, (*rho.shape[:-1], T - 1))
         # (1 - rho)(1 + rho) keeps precision as |rho| -> 1.
-        return phi, (1.0 - phi) * (1.0 + phi), ok
+        return rho, (1.0 - rho) * (1.0 + rho), None, np.array([max(T - 1, 0)]), ok
     t = np.asarray(times, dtype=float)
     if t.shape != (T,):
         raise LikelihoodError(f"times must have shape ({T},) like the series, got {t.shape}")
@@ -162,11 +164,25 @@ def _lag_powers(
         raise LikelihoodError(f"dt_ref must be a positive time step in s, got {dt_ref!r}")
     ok = (rho[..., 0] >= 0) & (rho[..., 0] < 1)
     safe = np.where((rho >= 0) & (rho < 1), rho, 0.5)
+    u, index, counts = np.unique(steps, return_inverse=True, return_counts=True)
     with np.errstate(divide="ignore"):  # log(0) = -inf gives phi = 0 exactly, as it should
-        log_phi = (steps / ref) * np.log(safe)
-    phi = np.exp(log_phi)
+        log_phi = (u / ref) * np.log(safe)
     # 1 - phi^2 = -expm1(2 log phi): accurate when steps are short and phi is near 1.
-    return phi, -np.expm1(2.0 * log_phi), ok
+    return np.exp(log_phi), -np.expm1(2.0 * log_phi), index, counts, ok
+
+
+def _lag_powers(
+    rho: np.ndarray, times: np.ndarray | None, dt_ref: float | None, T: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-step correlations phi_t and innovation variance factors 1 - phi_t^2.
+
+    Returns phi (..., T-1), one_minus_phi2 (..., T-1) and the support mask (...).
+    """
+    phi, vf, index, _, ok = _lag_table(rho, times, dt_ref, T)
+    if index is None:
+        shape = (*phi.shape[:-1], T - 1)
+        return np.broadcast_to(phi, shape), np.broadcast_to(vf, shape), ok
+    return phi[..., index], vf[..., index], ok
 
 
 def ar1_pointwise(
@@ -285,7 +301,26 @@ def ar1_loglik(
     ndarray, shape r.shape[:-1]
         Log-likelihoods; ``-inf`` outside the support.
     """
-    return np.sum(ar1_pointwise(r, sigma, rho, times=times, dt_ref=dt_ref), axis=-1)
+    # The sum of the pointwise terms, without them: per set one pass over the
+    # innovations, and the log variance factors counted once per distinct step.
+    r, (s, p) = _prepare(r, sigma=sigma, rho=rho)
+    T = r.shape[-1]
+    s, p = np.broadcast_arrays(s, p)
+    phi, vf, index, counts, ok_rho = _lag_table(p, times, dt_ref, T)
+    ok = (s > 0) & ok_rho
+    ss = np.where(ok, s, 1.0)
+    phi = np.where(ok[..., None], phi, 0.0)
+    vf = np.where(ok[..., None], vf, 1.0)
+    ll = -0.5 * T * _LOG_2PI - T * np.log(ss) - 0.5 * (r[..., 0] / ss) ** 2
+    if T > 1:
+        if index is None:
+            e = r[..., 1:] - phi * r[..., :-1]
+            q = np.sum(e * e, axis=-1) / vf[..., 0]
+        else:
+            e = r[..., 1:] - phi[..., index] * r[..., :-1]
+            q = np.sum(e * e * (1.0 / vf)[..., index], axis=-1)
+        ll = ll - 0.5 * np.sum(counts * np.log(vf), axis=-1) - 0.5 * q / ss**2
+    return np.where(ok, ll, -np.inf)
 
 
 def stationary_ar1(
