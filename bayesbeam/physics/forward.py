@@ -365,6 +365,7 @@ class Forward:
         # Structure that changes K only (root spring, stiffness gradient): M and so its
         # Cholesky inverse are the same for every set; factor once.
         self._Li = None
+        self._modal_cache: tuple[tuple, tuple] | None = None  # modal_initial_state's
         if not self._fixed and not {"tip_mass", "added_mass"} & set(self.model.structural):
             self._Li = np.linalg.inv(np.linalg.cholesky(self.fe.M))
         # Classical damping with shared shapes: _modal_image returned exactly diagonal
@@ -593,9 +594,21 @@ class Forward:
             the first sample).
         """
         theta = self._columns(theta)
+        # One-entry cache: an amplitude-dependent model asks for the modal system of the
+        # very sets whose linear signal it has just computed (physics/nonlinear.py), and
+        # with a structural parameter that is a batched eigensolve of the FE matrices.
+        # The arrays are returned read-only, so that no caller can alter the cached copy.
+        key = (theta.shape, theta.tobytes())
+        if self._modal_cache is not None and self._modal_cache[0] == key:
+            return self._modal_cache[1]
         omega, C, phi = self.modal_system(theta)
         # _initial_state needs the stiffness matrices of this very call (self._last_K).
-        return omega, C, phi, self._initial_state(theta, omega, phi)
+        out = (omega, C, phi, self._initial_state(theta, omega, phi))
+        for a in out:
+            if a is not None:
+                a.setflags(write=False)
+        self._modal_cache = (key, out)
+        return out
 
     def state_space(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """First-order modal system of admissible parameter sets.
