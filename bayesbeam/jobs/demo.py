@@ -691,8 +691,17 @@ def _finish_joint(runs: Sequence[Mapping[str, Any]], outdir: Path,
         if rec is not None:
             say(f"joint fit of {spec['beam']}: cached")
         else:
-            files, rec, sec = (run["future"].result() if run["future"] is not None
-                               else run_joint_task(run["task"]))
+            try:
+                files, rec, sec = (run["future"].result() if run["future"] is not None
+                                   else run_joint_task(run["task"]))
+            except ValueError as exc:
+                # The fit's own refusals (JointError, FitError: trials that cannot share
+                # a parameter, no finite start) end this beam's joint fit, not the demo's
+                # minutes of per-trial results; said here and in the table, not cached.
+                say(f"joint fit of {spec['beam']}: FAILED: {exc}")
+                records.append({"beam": spec["beam"], "model": spec["model"],
+                                "error": str(exc)})
+                continue
             files = {**files, "joint.json": (json.dumps(finite_json(rec), indent=2,
                                                         allow_nan=False) + "\n").encode()}
             _write_files(run["folder"], files, {"key": spec["key"], "spec": spec,

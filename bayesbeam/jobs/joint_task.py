@@ -163,7 +163,8 @@ def format_joint_table(records: Sequence[Mapping[str, Any]],
     Parameters
     ----------
     records : sequence of dict
-        :func:`joint_record` outputs, one per beam.
+        :func:`joint_record` outputs, one per beam (a record with ``error`` instead:
+        a fit that failed, listed under the table).
     rows : sequence of dict
         :func:`bayesbeam.jobs.summary.beam_summary` rows (for the single-trial E sd).
 
@@ -175,6 +176,9 @@ def format_joint_table(records: Sequence[Mapping[str, Any]],
             "damping population: median [90 %]; spread [90 %]", "ESS min", "adequate"]
     body, notes = [], []
     for rec in records:
+        if "error" in rec:  # the fit refused its input (the demo's _finish_joint)
+            notes.append(f"{rec['beam']}: joint fit of {rec['model']} FAILED: {rec['error']}")
+            continue
         post = rec["posterior"]
         n = len(rec["labels"])
         single = next((r for r in rows if r["beam"] == rec["beam"]

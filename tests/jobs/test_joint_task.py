@@ -85,3 +85,24 @@ def test_replication_fits_each_beam_jointly_and_caches_it(tmp_path):
     rep2 = run_replication(tmp_path, progress=again.append, **kw)
     assert any("joint fit of beam2: cached" in ln for ln in again)
     assert rep2.joint == rep.joint
+
+
+def test_a_failed_joint_fit_is_reported_not_fatal(tmp_path, monkeypatch):
+    # A joint fit that refuses its input ends that beam's joint fit, with a message in
+    # the progress lines and under the table; the per-trial results stand.
+    import bayesbeam.jobs.demo as demo
+
+    def refuse(task):
+        raise ValueError("trials cannot share E: different beams")
+
+    monkeypatch.setattr(demo, "run_joint_task", refuse)
+    lines: list[str] = []
+    rep = run_replication(tmp_path, beams=["beam2"], trials=[1, 2], models=["viscous"],
+                          settings=TINY, jobs=1, diagnosis=False, report=False,
+                          plots="none", progress=lines.append)
+    assert rep.joint == [{"beam": "beam2", "model": "viscous",
+                          "error": "trials cannot share E: different beams"}]
+    assert any("joint fit of beam2: FAILED" in ln for ln in lines)
+    text = (tmp_path / "replication.txt").read_text()
+    assert "beam2: joint fit of viscous FAILED: trials cannot share E" in text
+    assert not (tmp_path / "joint-beam2").exists()
