@@ -34,8 +34,6 @@ records them for the whole run.
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import json
 import platform
 import time
@@ -54,8 +52,9 @@ from bayesbeam._util import (
     write_text_atomic,
 )
 from bayesbeam.inference.settings import FIT_DEFAULTS
-from bayesbeam.jobs.joint_task import format_joint_table, run_joint_task
+from bayesbeam.jobs.joint_task import finish_joint, format_joint_table, start_joint
 from bayesbeam.jobs.summary import beam_of, beam_summary, conclusions_text, format_table
+from bayesbeam.jobs.tasks import cached_record, json_key, write_task_files
 
 __all__ = [
     "DATA_DIR",
@@ -294,67 +293,8 @@ def _diagnosis_spec(trial_file: Path, seed: int, settings: Mapping[str, Any]
     key_src = {k: v for k, v in spec.items() if k != "trial_file"}
     key_src["data_sha256"] = trial.sha256
     key_src["toml_sha256"] = file_sha256(trial_file)
-    spec["key"] = _key(key_src)
+    spec["key"] = json_key(key_src)
     return spec, trial
-
-
-def _key(src: Mapping[str, Any]) -> str:
-    """Cache key of a task: the SHA-256 of its JSON description (data by their SHA-256s)."""
-    return hashlib.sha256(json.dumps(src, sort_keys=True).encode()).hexdigest()
-
-
-def _cached(folder: Path, key: str, name: str) -> dict[str, Any] | None:
-    """Return the record ``name`` of a task folder whose ``task.json`` has ``key``, or None."""
-    try:
-        if json.loads((folder / "task.json").read_text("utf-8")).get("key") != key:
-            return None
-        return json.loads((folder / name).read_text("utf-8"))
-    except (OSError, json.JSONDecodeError):
-        return None
-
-
-def _joint_specs(files: Sequence[Path], rows: Sequence[Mapping[str, Any]],
-                 models: Sequence[str], seed: int, settings: Mapping[str, Any]
-                 ) -> list[tuple[dict[str, Any], list[Any]]]:
-    """One joint-fit task per beam with at least two trials: (spec with its key, trials).
-
-    The model is :func:`~bayesbeam.jobs.joint_task.joint_model`'s choice from the
-    per-trial evidence; the fit settings are the per-trial fits' except the walker
-    count, which the joint fit sizes to its dimension.
-    """
-    from bayesbeam.inference.settings import FitSettings
-    from bayesbeam.jobs.joint_task import joint_model, pooled_names
-    from bayesbeam.trials.io import read_trial
-
-    by_beam: dict[str, list[Path]] = {}
-    for f in files:
-        by_beam.setdefault(beam_of(f.stem), []).append(Path(f).resolve())
-    fit_keys = [f.name for f in dataclasses.fields(FitSettings)]
-    fit_settings = {k: settings[k] for k in fit_keys if k in settings}
-    fit_settings["nwalkers"] = None
-    out = []
-    for beam, paths in by_beam.items():
-        model = joint_model(rows, beam, models)
-        if len(paths) < 2 or model is None:
-            continue
-        trials = [read_trial(p) for p in paths]
-        spec = {"beam": beam, "model": model, "shared": ["E"],
-                "pooled": list(pooled_names(model)), "seed": int(seed),
-                "settings": fit_settings, "trial_files": [str(p) for p in paths]}
-        spec["key"] = _key({**{k: v for k, v in spec.items() if k != "trial_files"},
-                            "data_sha256": [t.sha256 for t in trials],
-                            "toml_sha256": [file_sha256(p) for p in paths]})
-        out.append((spec, trials))
-    return out
-
-
-def _write_files(folder: Path, files: Mapping[str, bytes], task: Mapping[str, Any]) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, data in files.items():
-        with atomic_path(folder / name) as tmp:
-            tmp.write_bytes(data)
-    write_text_atomic(folder / "task.json",
-                      json.dumps({"schema_version": SCHEMA_VERSION, **task}, indent=2) + "\n")
 
 
 # --------------------------------------------------------------------------- overlay
@@ -549,8 +489,8 @@ def run_replication(
         diag_future = None
         if diag_spec is not None:
             diag_dir = outdir / f"diagnosis-{Path(diag_spec['trial_file']).stem}"
-            diag_record = None if force else _cached(diag_dir, diag_spec["key"],
-                                                     "diagnosis.json")
+            diag_record = None if force else cached_record(diag_dir, diag_spec["key"],
+                                                           "diagnosis.json")
             if diag_record is None and ex is not None:
                 # Submitted first: the longest task starts while the fits fill the other slots.
                 diag_future = ex.submit(run_diagnosis_task, {**diag_spec, "trial": diag_trial})
@@ -571,21 +511,21 @@ def run_replication(
             scores[tname] = {o.task.model: o.score for o in outs}
         rows = beam_summary(scores, comparisons, [m for m in models])
         t_comp = time.perf_counter() - t_comp0
-        joint_runs = _start_joint(ex, files, rows, models, seed, base, outdir, force, say
-                                  ) if joint else []
+        joint_runs = start_joint(ex, files, rows, models, seed, base, outdir, force, say
+                                 ) if joint else []
         if diag_spec is not None and diag_record is None:
             if diag_future is not None:
                 dfiles, diag_record, dsec = diag_future.result()
             else:
                 say("diagnosis: running (serial)...")
                 dfiles, diag_record, dsec = run_diagnosis_task({**diag_spec, "trial": diag_trial})
-            _write_files(diag_dir, dfiles, {"key": diag_spec["key"], "spec": diag_spec,
+            write_task_files(diag_dir, dfiles, {"key": diag_spec["key"], "spec": diag_spec,
                                             "seconds": dsec})
             say(f"diagnosis of {diag_record.get('trial')}: named causes "
                 f"{diag_record.get('named_causes') or 'none'} ({dsec:.0f} s)")
         elif diag_record is not None:
             say(f"diagnosis of {diag_record.get('trial')}: cached")
-        joint_records = _finish_joint(joint_runs, outdir, say)
+        joint_records = finish_joint(joint_runs, say)
     t_fits = time.perf_counter()
 
     t_plot0 = time.perf_counter()
@@ -661,55 +601,6 @@ def run_replication(
                        scores=scores, diagnosis=diag_record, joint=joint_records,
                        report=rep_path, seconds=seconds,
                        record=record)
-
-
-def _start_joint(ex: Any, files: Sequence[Path], rows: Sequence[Mapping[str, Any]],
-                 models: Sequence[str], seed: int, settings: Mapping[str, Any], outdir: Path,
-                 force: bool, say: Callable[[str], None]) -> list[dict[str, Any]]:
-    """Submit the joint fits that are not cached (run later, serially, without executor)."""
-    runs = []
-    for spec, trials in _joint_specs(files, rows, models, seed, settings):
-        folder = outdir / f"joint-{spec['beam']}"
-        rec = None if force else _cached(folder, spec["key"], "joint.json")
-        task = {**spec, "trials": trials}
-        fut = ex.submit(run_joint_task, task) if rec is None and ex is not None else None
-        if rec is None:
-            say(f"joint fit of {spec['beam']}: {spec['model']} on {len(trials)} trials, "
-                f"E shared, pooled {', '.join(spec['pooled'])}"
-                + ("" if fut is not None else " (serial)"))
-        runs.append({"spec": spec, "task": task, "folder": folder, "record": rec,
-                     "future": fut})
-    return runs
-
-
-def _finish_joint(runs: Sequence[Mapping[str, Any]], outdir: Path,
-                  say: Callable[[str], None]) -> list[dict[str, Any]]:
-    """Wait for (or run) the joint fits, write their folders, return their records."""
-    records = []
-    for run in runs:
-        spec, rec = run["spec"], run["record"]
-        if rec is not None:
-            say(f"joint fit of {spec['beam']}: cached")
-        else:
-            try:
-                files, rec, sec = (run["future"].result() if run["future"] is not None
-                                   else run_joint_task(run["task"]))
-            except ValueError as exc:
-                # The fit's own refusals (JointError, FitError: trials that cannot share
-                # a parameter, no finite start) end this beam's joint fit, not the demo's
-                # minutes of per-trial results; said here and in the table, not cached.
-                say(f"joint fit of {spec['beam']}: FAILED: {exc}")
-                records.append({"beam": spec["beam"], "model": spec["model"],
-                                "error": str(exc)})
-                continue
-            files = {**files, "joint.json": (json.dumps(finite_json(rec), indent=2,
-                                                        allow_nan=False) + "\n").encode()}
-            _write_files(run["folder"], files, {"key": spec["key"], "spec": spec,
-                                                "seconds": sec})
-            say(f"joint fit of {spec['beam']}: done ({sec:.0f} s"
-                + ("" if rec["converged"] else ", not converged") + ")")
-        records.append(rec)
-    return records
 
 
 def _ignore(line: str) -> None:

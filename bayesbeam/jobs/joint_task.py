@@ -17,20 +17,23 @@ table of :func:`bayesbeam.jobs.summary.format_table`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import tempfile
 import textwrap
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from bayesbeam._util import finite_json, interval_digits
+from bayesbeam._util import file_sha256, finite_json, interval_digits
+from bayesbeam.jobs.tasks import cached_record, json_key, write_task_files
 from bayesbeam.physics.models import parse_model
 
-__all__ = ["STRENGTH", "format_joint_table", "joint_model", "pooled_names", "run_joint_task"]
+__all__ = ["STRENGTH", "finish_joint", "format_joint_table", "joint_model", "joint_specs",
+           "pooled_names", "run_joint_task", "start_joint"]
 
 #: The pooled strength of each damping law (spatial hysteresis is sampled as ``eta``).
 STRENGTH: dict[str, str] = {"viscous": "gamma", "kv": "c_d", "sh": "eta"}
@@ -215,3 +218,143 @@ def format_joint_table(records: Sequence[Mapping[str, Any]],
     if notes:
         lines += ["", "Warnings of the joint fits:", *(f"  {x}" for x in notes)]
     return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- the demo's runs
+
+
+def joint_specs(files: Sequence[Path], rows: Sequence[Mapping[str, Any]],
+                 models: Sequence[str], seed: int, settings: Mapping[str, Any]
+                 ) -> list[tuple[dict[str, Any], list[Any]]]:
+    """Return one joint-fit task per beam with at least two trials: (spec with key, trials).
+
+    The model is :func:`joint_model`'s choice from the per-trial evidence; the fit
+    settings are the per-trial fits' except the walker count, which the joint fit sizes
+    to its dimension.
+
+    Parameters
+    ----------
+    files : sequence of Path
+    rows : sequence of dict
+        :func:`bayesbeam.jobs.summary.beam_summary` rows.
+    models : sequence of str
+    seed : int
+    settings : mapping
+        The replication's fit settings.
+
+    Returns
+    -------
+    list of (dict, list of Trial)
+    """
+    from bayesbeam.inference.settings import FitSettings
+    from bayesbeam.jobs.summary import beam_of
+    from bayesbeam.trials.io import read_trial
+
+    by_beam: dict[str, list[Path]] = {}
+    for f in files:
+        by_beam.setdefault(beam_of(f.stem), []).append(Path(f).resolve())
+    fit_keys = [f.name for f in dataclasses.fields(FitSettings)]
+    fit_settings = {k: settings[k] for k in fit_keys if k in settings}
+    fit_settings["nwalkers"] = None
+    out = []
+    for beam, paths in by_beam.items():
+        model = joint_model(rows, beam, models)
+        if len(paths) < 2 or model is None:
+            continue
+        trials = [read_trial(p) for p in paths]
+        spec = {"beam": beam, "model": model, "shared": ["E"],
+                "pooled": list(pooled_names(model)), "seed": int(seed),
+                "settings": fit_settings, "trial_files": [str(p) for p in paths]}
+        spec["key"] = json_key({**{k: v for k, v in spec.items() if k != "trial_files"},
+                            "data_sha256": [t.sha256 for t in trials],
+                            "toml_sha256": [file_sha256(p) for p in paths]})
+        out.append((spec, trials))
+    return out
+
+
+def start_joint(ex: Any, files: Sequence[Path], rows: Sequence[Mapping[str, Any]],
+                 models: Sequence[str], seed: int, settings: Mapping[str, Any], outdir: Path,
+                 force: bool, say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """Submit the joint fits that are not cached (run later, serially, without executor).
+
+    Parameters
+    ----------
+    ex : Executor or None
+        Where the fits run (None: in :func:`finish_joint`, serially).
+    files : sequence of Path
+        The trial files of the replication.
+    rows : sequence of dict
+        :func:`bayesbeam.jobs.summary.beam_summary` rows (the model choice).
+    models : sequence of str
+    seed : int
+    settings : mapping
+        The replication's fit settings.
+    outdir : Path
+        The joint fits' folders go in ``outdir / "joint-BEAM"``.
+    force : bool
+        Recompute cached fits.
+    say : callable
+        Progress lines.
+
+    Returns
+    -------
+    list of dict
+        One run per beam (spec, task, folder, cached record or None, future or None).
+    """
+    runs = []
+    for spec, trials in joint_specs(files, rows, models, seed, settings):
+        folder = outdir / f"joint-{spec['beam']}"
+        rec = None if force else cached_record(folder, spec["key"], "joint.json")
+        task = {**spec, "trials": trials}
+        fut = ex.submit(run_joint_task, task) if rec is None and ex is not None else None
+        if rec is None:
+            say(f"joint fit of {spec['beam']}: {spec['model']} on {len(trials)} trials, "
+                f"E shared, pooled {', '.join(spec['pooled'])}"
+                + ("" if fut is not None else " (serial)"))
+        runs.append({"spec": spec, "task": task, "folder": folder, "record": rec,
+                     "future": fut})
+    return runs
+
+
+def finish_joint(runs: Sequence[Mapping[str, Any]], say: Callable[[str], None]
+                 ) -> list[dict[str, Any]]:
+    """Wait for (or run) the joint fits, write their folders, return their records.
+
+    Parameters
+    ----------
+    runs : sequence of dict
+        :func:`start_joint`'s output.
+    say : callable
+        Progress lines.
+
+    Returns
+    -------
+    list of dict
+        :func:`joint_record` per beam, or ``{"beam", "model", "error"}`` for a fit
+        that refused its input.
+    """
+    records = []
+    for run in runs:
+        spec, rec = run["spec"], run["record"]
+        if rec is not None:
+            say(f"joint fit of {spec['beam']}: cached")
+        else:
+            try:
+                files, rec, sec = (run["future"].result() if run["future"] is not None
+                                   else run_joint_task(run["task"]))
+            except ValueError as exc:
+                # The fit's own refusals (JointError, FitError: trials that cannot share
+                # a parameter, no finite start) end this beam's joint fit, not the demo's
+                # minutes of per-trial results; said here and in the table, not cached.
+                say(f"joint fit of {spec['beam']}: FAILED: {exc}")
+                records.append({"beam": spec["beam"], "model": spec["model"],
+                                "error": str(exc)})
+                continue
+            files = {**files, "joint.json": (json.dumps(finite_json(rec), indent=2,
+                                                        allow_nan=False) + "\n").encode()}
+            write_task_files(run["folder"], files, {"key": spec["key"], "spec": spec,
+                                                "seconds": sec})
+            say(f"joint fit of {spec['beam']}: done ({sec:.0f} s"
+                + ("" if rec["converged"] else ", not converged") + ")")
+        records.append(rec)
+    return records

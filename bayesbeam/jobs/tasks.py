@@ -28,6 +28,7 @@ from typing import Any
 
 from bayesbeam._util import (
     SCHEMA_VERSION,
+    atomic_path,
     file_sha256,
     finite_json,
     json_default,
@@ -145,8 +146,68 @@ def task_key(task: FitTask) -> str:
         "settings": task.settings,
         "seed": int(task.seed),
     }
+    return json_key(payload)
+
+
+
+def json_key(payload: Mapping[str, Any]) -> str:
+    """SHA-256 (hex) of a task's canonical JSON description: its cache key.
+
+    Parameters
+    ----------
+    payload : mapping
+        What determines the task's result (data by their SHA-256s, not their paths).
+
+    Returns
+    -------
+    str
+    """
     text = json.dumps(payload, sort_keys=True, default=str, allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def cached_record(folder: Path, key: str, name: str) -> dict[str, Any] | None:
+    """Return the record ``name`` of a task folder whose ``task.json`` has ``key``, or None.
+
+    Parameters
+    ----------
+    folder : Path
+    key : str
+        :func:`json_key` of the task.
+    name : str
+        The record's file in ``folder`` (e.g. ``diagnosis.json``).
+
+    Returns
+    -------
+    dict or None
+        None when the folder holds another task's results, or none readable.
+    """
+    try:
+        if json.loads((folder / "task.json").read_text("utf-8")).get("key") != key:
+            return None
+        return json.loads((folder / name).read_text("utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def write_task_files(folder: Path, files: Mapping[str, bytes], task: Mapping[str, Any]) -> None:
+    """Write a task's files atomically, then its ``task.json`` (``key``, spec, seconds).
+
+    Parameters
+    ----------
+    folder : Path
+        Created if missing.
+    files : mapping of str to bytes
+    task : mapping
+        Written with the schema version as ``task.json``, last: a folder whose
+        ``task.json`` has the key holds all the task's files.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, data in files.items():
+        with atomic_path(folder / name) as tmp:
+            tmp.write_bytes(data)
+    write_text_atomic(folder / "task.json",
+                      json.dumps({"schema_version": SCHEMA_VERSION, **task}, indent=2) + "\n")
 
 
 def fit_tasks(

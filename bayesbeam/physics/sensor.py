@@ -191,7 +191,7 @@ def _invariant_reduction(
     ``a' = (A11 + A12 X) a``, ``y = (h_K + h_D X) a``: the projection of
     :func:`_eigen_projection` without an eigendecomposition of A, and a propagation of
     ``len(K)`` states instead of all. ``A22`` is the dropped modes' own modal state
-    matrix, inverted in closed form (:func:`_modal_inverse`).
+    matrix, inverted in closed form (:func:`_modal_inverse_blocks`).
 
     Parameters
     ----------
@@ -281,12 +281,13 @@ def _rel_change(new: np.ndarray, old: np.ndarray) -> np.ndarray:
     return np.sqrt(num / np.maximum(den, 1e-300))
 
 
-def _modal_inverse(A: np.ndarray) -> np.ndarray:
-    """Inverse of modal state matrices ``A = [[0, Ω], [-Ω, -C]]`` in closed form.
+def _modal_inverse_blocks(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the blocks of the inverse of modal state matrices ``A = [[0, Ω], [-Ω, -C]]``.
 
     ``A⁻¹ = [[-Ω⁻¹ C Ω⁻¹, -Ω⁻¹], [Ω⁻¹, 0]]`` (multiply out: the blocks give I, 0, 0, I),
     with Ω diagonal: no factorisation, and exact where an LU would lose the digits of the
-    stiff modes. A zero ω gives non-finite entries, which the caller flags.
+    stiff modes. A zero ω gives non-finite entries, which the caller flags. Applied by
+    :func:`_inverse_left` and :func:`_inverse_right` without forming ``A⁻¹``.
 
     Parameters
     ----------
@@ -296,20 +297,11 @@ def _modal_inverse(A: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (B, 2r, 2r)
+    P : ndarray, shape (B, r, r)
+        ``-Ω⁻¹ C Ω⁻¹``.
+    wi : ndarray, shape (B, r)
+        ``1/ω``.
     """
-    P, wi = _modal_inverse_blocks(A)
-    r = wi.shape[1]
-    out = np.zeros_like(A)
-    out[:, :r, :r] = P
-    i = np.arange(r)
-    out[:, i, r + i] = -wi
-    out[:, r + i, i] = wi
-    return out
-
-
-def _modal_inverse_blocks(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the blocks of :func:`_modal_inverse`: ``P = -Ω⁻¹ C Ω⁻¹`` (B, r, r), ``1/ω`` (B, r)."""
     r = A.shape[1] // 2
     with np.errstate(divide="ignore", invalid="ignore"):
         wi = 1.0 / np.diagonal(A[:, :r, r:], axis1=1, axis2=2)  # (B, r): 1/ω

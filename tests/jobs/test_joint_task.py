@@ -90,12 +90,12 @@ def test_replication_fits_each_beam_jointly_and_caches_it(tmp_path):
 def test_a_failed_joint_fit_is_reported_not_fatal(tmp_path, monkeypatch):
     # A joint fit that refuses its input ends that beam's joint fit, with a message in
     # the progress lines and under the table; the per-trial results stand.
-    import bayesbeam.jobs.demo as demo
+    import bayesbeam.jobs.joint_task as joint_task
 
     def refuse(task):
         raise ValueError("trials cannot share E: different beams")
 
-    monkeypatch.setattr(demo, "run_joint_task", refuse)
+    monkeypatch.setattr(joint_task, "run_joint_task", refuse)
     lines: list[str] = []
     rep = run_replication(tmp_path, beams=["beam2"], trials=[1, 2], models=["viscous"],
                           settings=TINY, jobs=1, diagnosis=False, report=False,

@@ -20,7 +20,6 @@ from bayesbeam.physics.sensor import (
     _eigen_projection,
     _inverse_left,
     _inverse_right,
-    _modal_inverse,
     _modal_inverse_blocks,
     band_limit,
 )
@@ -126,6 +125,18 @@ def test_unlimited_band_is_the_full_model():
 def test_bad_bandwidth_is_refused(bad):
     with pytest.raises(ForwardError, match="bandwidth"):
         Forward(_beam(), "viscous", T[:10], n_elements=4, bandwidth=bad)
+
+
+def _modal_inverse(A):
+    """The dense inverse from its closed-form blocks (sensor._modal_inverse_blocks)."""
+    P, wi = _modal_inverse_blocks(A)
+    r = wi.shape[1]
+    out = np.zeros_like(A)
+    out[:, :r, :r] = P
+    i = np.arange(r)
+    out[:, i, r + i] = -wi
+    out[:, r + i, i] = wi
+    return out
 
 
 def test_closed_form_inverse_of_a_modal_state_matrix():
