@@ -153,6 +153,7 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
             jf = fit_joint(trials, model, shared=shared, pooled=pooled,
                            marginalise=not args.no_marginalise, initial=initial, outdir=outdir,
                            resume=args.resume, progress=True, priors=overrides,
+                           sampler_options=opts.helper_options(args),
                            **opts.fit_settings(args))
         except JointError as exc:
             raise error(str(exc)) from None

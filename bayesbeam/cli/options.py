@@ -312,6 +312,23 @@ def fit_settings(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def helper_options(args: argparse.Namespace) -> dict[str, int]:
+    """``sampler_options`` of ``bayesbeam fit --jobs N``: N - 1 helper processes.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options with ``jobs`` (>= 1).
+
+    Returns
+    -------
+    dict
+        ``{"helpers": N - 1}`` (:class:`~bayesbeam.inference.parallel.ParallelLogProb`),
+        empty for one process.
+    """
+    return {"helpers": args.jobs - 1} if args.jobs > 1 else {}
+
+
 def prepare_trial(args: argparse.Namespace, error: type[Exception] = ValueError,
                   say: Callable[[str], None] | None = None) -> tuple[Any, Any]:
     """Read ``args.trial`` and prepare it for a fit (:func:`bayesbeam.trials.preprocess.prepare`).

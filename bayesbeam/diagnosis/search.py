@@ -239,8 +239,10 @@ class _Engine:
             if st.score is None and not any(st is t for t in todo):
                 todo.append(st)
         if executor is None or len(todo) < 2:
+            # A lone run leaves the executor's cores idle: share its batches with one
+            # helper process (inference.parallel; the same values, bit for bit).
             for st in todo:
-                self.confirm(st)
+                self.confirm(st, helpers=0 if executor is None else 1)
                 if on_done is not None:
                     on_done(st)
             return
@@ -257,21 +259,28 @@ class _Engine:
                 on_done(st)
 
     # -- sampling and scoring ---------------------------------------------------------
-    def confirm(self, st: _State) -> Any:
-        """Sample from the MAP and score (bridge evidence, LOO); cached."""
+    def confirm(self, st: _State, helpers: int = 0) -> Any:
+        """Sample from the MAP and score (bridge evidence, LOO); cached.
+
+        ``helpers`` processes share the sampler's batches
+        (:class:`~bayesbeam.inference.parallel.ParallelLogProb`).
+        """
         if st.score is not None:
             return st.score
         t0 = time.perf_counter()
         self._k += 1
         notes: list[str] = []
-        score = self._sample_and_score(st, int(self.seed) * 1000 + self._k, notes)
+        score = self._sample_and_score(st, int(self.seed) * 1000 + self._k, notes,
+                                       helpers=helpers)
         self._scored(st, score, notes, time.perf_counter() - t0)
         return st.score
 
-    def _sample_and_score(self, st: _State, seed: int, notes: list[str]) -> Any:
+    def _sample_and_score(self, st: _State, seed: int, notes: list[str],
+                          helpers: int = 0) -> Any:
         from bayesbeam.comparison.scoring import evaluate
 
-        res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes)
+        res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes,
+                      helpers=helpers)
         return evaluate(self.trial, st.problem.model, seed=seed, result=res,
                         problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]))
 
@@ -386,15 +395,18 @@ def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:
 
 
 def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any],
-            notes: list[str]) -> Any:
+            notes: list[str], helpers: int = 0) -> Any:
     """Sample with emcee from a ball around the MAP (:func:`~.fit.walker_scale`).
 
     The ensemble moves in the coordinates of :class:`~.fit.SamplerCoordinates`, as in
     :func:`~.fit.fit`: the damping laws' log total first-mode damping and log ratios,
     where the viscous/KV trade-off that a record fixes only in total is a straight
-    valley instead of a curved one (unit Jacobian: the density is unchanged).
+    valley instead of a curved one (unit Jacobian: the density is unchanged). ``helpers``
+    processes share each batch of the chains
+    (:class:`~bayesbeam.inference.parallel.ParallelLogProb`).
     """
     from bayesbeam.inference import fit as fitmod
+    from bayesbeam.inference.parallel import ParallelLogProb
     from bayesbeam.inference.results import FitResult, make_provenance
     from bayesbeam.inference.settings import walker_count
     from bayesbeam.stats.sampling import NotConvergedWarning, init_walkers
@@ -405,10 +417,11 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng,
                       scale=fitmod.walker_scale(pb, u_map))
     t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, \
+            ParallelLogProb(pb, helpers=helpers) as log_prob:
         warnings.simplefilter("always", NotConvergedWarning)
         chain = sample_in_coordinates(
-            pb.log_prob, SamplerCoordinates(pb), u0, seed=seed,
+            log_prob, SamplerCoordinates(pb), u0, seed=seed,
             max_steps=int(settings["max_steps"]), min_steps=int(settings["min_steps"]),
             target_ess=float(settings["target_ess"]), names=pb.names, progress=False,
             # As in fit(): a discarded first run returns stranded walkers.

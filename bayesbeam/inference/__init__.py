@@ -39,6 +39,8 @@ _EXPORTS = {
     "map_bounds": ".optimum",
     "mesh_check": ".mesh",
     "newton_polish": ".optimum",
+    "escape_bounds": ".optimum",
+    "ParallelLogProb": ".parallel",
     "make_provenance": ".results",
     "posterior_predictive": ".predictive",
     "predictive_draws": ".predictive",

@@ -34,6 +34,7 @@ from bayesbeam.inference.coordinates import (
 )
 from bayesbeam.inference.mesh import converge_mesh
 from bayesbeam.inference.optimum import best_map, diagonal_sd, local_map
+from bayesbeam.inference.parallel import ParallelLogProb
 from bayesbeam.inference.problem import Problem, amplitude_names, record_f1
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
@@ -433,7 +434,7 @@ def find_map(
 
 
 _SAMPLER_OPTIONS = ("n_tau", "tau_rtol", "check_every", "burn_in_taus", "thin",
-                    "checkpoint_seconds", "moves")
+                    "checkpoint_seconds", "moves", "helpers")
 
 
 def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -441,6 +442,10 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     bad = sorted(set(opts) - set(_SAMPLER_OPTIONS))
     if bad:
         raise FitError(f"unknown sampler_options {bad}; allowed: {list(_SAMPLER_OPTIONS)}")
+    helpers = opts.get("helpers", 0)
+    if isinstance(helpers, bool) or not isinstance(helpers, int) or helpers < 0:
+        raise FitError(f"sampler_options: helpers must be a non-negative integer (helper "
+                       f"processes that share the sampler's batches), got {helpers!r}")
     if "moves" in opts:  # checked here, before the expensive MAP search
         try:
             named_moves(opts["moves"])
@@ -527,7 +532,10 @@ def fit(
         (``n_tau``, ``tau_rtol``, ``check_every``, ``burn_in_taus``, ``thin``,
         ``checkpoint_seconds``), e.g. a cheaper stopping rule for batch studies, and
         ``moves``: the proposal mixture, a name of
-        :data:`~bayesbeam.stats.sampling.MOVE_SETS` (default ``"de"``).
+        :data:`~bayesbeam.stats.sampling.MOVE_SETS` (default ``"de"``), and ``helpers``:
+        processes that share each batch of the sampler with this one (default 0; see
+        :class:`~bayesbeam.inference.parallel.ParallelLogProb`: worth it on whole
+        records, where a batch takes tens of ms).
 
     Returns
     -------
@@ -562,22 +570,24 @@ def fit(
     scale = walker_scale(problem, u_map)
     u0 = init_walkers(problem.log_prob, u_map, nwalkers, rng=rng, scale=scale)
     coords = SamplerCoordinates(problem)
-    chain: Chain = sample_in_coordinates(
-        problem.log_prob,
-        coords,
-        u0,
-        seed=seed,
-        max_steps=max_steps,
-        min_steps=min_steps,
-        target_ess=target_ess,
-        backend_path=checkpoint_path(outdir, resume),
-        resume=resume,
-        progress=progress,
-        names=problem.names,
-        preburn=PREBURN_STEPS,
-        label=f"fit {problem.model.name}: emcee",
-        **sampler_kw,
-    )
+    helpers = sampler_kw.pop("helpers", 0)
+    with ParallelLogProb(problem, helpers=helpers) as log_prob:
+        chain: Chain = sample_in_coordinates(
+            log_prob,
+            coords,
+            u0,
+            seed=seed,
+            max_steps=max_steps,
+            min_steps=min_steps,
+            target_ess=target_ess,
+            backend_path=checkpoint_path(outdir, resume),
+            resume=resume,
+            progress=progress,
+            names=problem.names,
+            preburn=PREBURN_STEPS,
+            label=f"fit {problem.model.name}: emcee",
+            **sampler_kw,
+        )
     samples = chain.samples
     X = problem.theta(samples.reshape(-1, ndim))
     derived = {k: v.reshape(samples.shape[:2]) for k, v in problem.derived(X).items()}

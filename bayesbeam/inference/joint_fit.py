@@ -32,7 +32,8 @@ from bayesbeam.inference.coordinates import (
 from bayesbeam.inference.fit import _sampler_options, checkpoint_path, find_map, walker_scale
 from bayesbeam.inference.joint import TIP_DISTANCE, JointProblem, PoolCoordinates
 from bayesbeam.inference.mesh import converge_mesh
-from bayesbeam.inference.optimum import local_map
+from bayesbeam.inference.optimum import escape_bounds, local_map
+from bayesbeam.inference.parallel import ParallelLogProb
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
@@ -374,6 +375,7 @@ def fit_joint(
     say(f"joint {model.name}: joint MAP ({jp.ndim} parameters, {len(trials)} trials)")
     coords = _Coordinates(jp)
     u_map, lp_map = local_map(jp, jp.priors.to_u(x0[None])[0], coords=coords)
+    u_map, lp_map = escape_bounds(jp, u_map, lp_map, coords=coords)
     if not np.isfinite(lp_map):
         from bayesbeam.inference.fit import FitError
 
@@ -383,12 +385,14 @@ def fit_joint(
     nwalkers = walker_count(nwalkers, ndim)
     scale = walker_scale(jp, u_map)
     u0 = init_walkers(jp.log_prob, u_map, nwalkers, rng=rng, scale=scale)
-    chain: Chain = sample_in_coordinates(
-        jp.log_prob, coords, u0, seed=seed, max_steps=max_steps, min_steps=min_steps,
-        target_ess=target_ess, backend_path=checkpoint_path(outdir, resume), resume=resume,
-        progress=progress, names=jp.names, preburn=PREBURN_STEPS,
-        label=f"joint {model.name}: emcee", **sampler_kw,
-    )
+    helpers = sampler_kw.pop("helpers", 0)
+    with ParallelLogProb(jp, helpers=helpers) as log_prob:
+        chain: Chain = sample_in_coordinates(
+            log_prob, coords, u0, seed=seed, max_steps=max_steps, min_steps=min_steps,
+            target_ess=target_ess, backend_path=checkpoint_path(outdir, resume),
+            resume=resume, progress=progress, names=jp.names, preburn=PREBURN_STEPS,
+            label=f"joint {model.name}: emcee", **sampler_kw,
+        )
     settings = {
         "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh),
         "initial": initial if isinstance(initial, str) else list(initial),

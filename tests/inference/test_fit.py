@@ -191,10 +191,33 @@ def test_sampler_coordinates_are_a_unit_jacobian_bijection():
     assert sc.to_v(U[:1])[0, sc.group[0]] == pytest.approx(math.log(zeta), rel=1e-12)
 
 
+def test_same_seed_same_chain_with_a_helper_process(base, monkeypatch):
+    # The batches shared with a helper process (forced here: the cheap test batches are
+    # under ParallelLogProb's time threshold) give the serial chain exactly.
+    import bayesbeam.inference.parallel as par
+
+    tr, _, res, _ = base
+    monkeypatch.setattr(par, "MIN_SECONDS", 0.0)
+    split = []
+    close = par.ParallelLogProb.close
+
+    def spy(self):
+        split.append(self.batches_split)
+        close(self)
+
+    monkeypatch.setattr(par.ParallelLogProb, "close", spy)
+    shared = _fit(tr, "viscous", seed=4, sampler_options={**FAST, "helpers": 1})
+    assert split and split[0] > 100  # the batches were shared
+    np.testing.assert_array_equal(shared.chain.samples, res.chain.samples)
+    np.testing.assert_array_equal(shared.chain.log_prob, res.chain.log_prob)
+
+
 def test_unknown_sampler_option_is_an_error(base):
     tr = base[0]
     with pytest.raises(ValueError, match="sampler_options"):
         fit(tr, "viscous", n_elements=NE, sampler_options={"tau_tol": 1})
+    with pytest.raises(ValueError, match="helpers must be a non-negative integer"):
+        fit(tr, "viscous", n_elements=NE, sampler_options={"helpers": -1})
     with pytest.raises(ValueError, match="moves 'hmc'; choose one of"):
         fit(tr, "viscous", n_elements=NE, sampler_options={"moves": "hmc"})
 

@@ -5,8 +5,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from bayesbeam.inference.optimum import (
+    ESCAPE_POINTS,
+    best_map,
     curvature_scales,
     diagonal_sd,
+    escape_bounds,
     local_map,
     map_bounds,
     newton_polish,
@@ -126,3 +129,49 @@ def test_newton_polish_reaches_a_mode_a_full_newton_step_overshoots():
     u, v = newton_polish(f, u0, v0, [(None, None)] * 2)
     assert v0 < -99 and v > -1e-3
     assert abs(u[1] - 2.0) < 0.05
+
+
+def _bound_trap(peak: float):
+    """x in [0, 1], y in [-5, 5]: a slope down from the bound x = 0 (a local maximum
+    there, log density 0) and, for ``peak > 0``, a narrow interior peak near x = 0.7 of
+    height ``peak - 3.5`` that no gradient at the bound can see (its tail there is
+    ~e^-68). Counts the calls of log_prob."""
+    calls = []
+
+    def log_prob(U):
+        U = np.atleast_2d(U)
+        calls.append(len(U))
+        x, y = U[:, 0], U[:, 1]
+        out = -5.0 * x - 0.5 * (y / 0.1) ** 2 + peak * np.exp(-0.5 * ((x - 0.7) / 0.06) ** 2)
+        inside = (x >= 0) & (x <= 1) & (np.abs(y) <= 5)
+        return np.where(inside, out, -np.inf)
+
+    bounds = np.array([[0.0, 1.0], [-5.0, 5.0]])
+    return SimpleNamespace(log_prob=log_prob, priors=SimpleNamespace(bounds_u=bounds)), calls
+
+
+def test_escape_bounds_leaves_a_bound_for_a_higher_interior_mode():
+    pb, _ = _bound_trap(peak=12.0)
+    # The local search from near the bound stops on it (the test's premise).
+    u, v = local_map(pb, np.array([0.05, 0.3]))
+    assert u[0] < 1e-6 and abs(v) < 1e-6
+    u2, v2 = escape_bounds(pb, u, v)
+    # The interior mode: 5 = 12 (x - 0.7)/0.06^2 exp(...) gives x = 0.6985 to 1e-4, log
+    # density 12 exp(-0.5 (0.0015/0.06)^2) - 5 x = 8.5038.
+    assert abs(u2[0] - 0.6985) < 1e-3 and abs(u2[1]) < 1e-3
+    assert abs(v2 - 8.5038) < 1e-3
+
+
+def test_escape_bounds_keeps_a_bound_that_is_the_optimum_at_the_cost_of_one_call():
+    pb, calls = _bound_trap(peak=0.0)
+    u, v = local_map(pb, np.array([0.05, 0.3]))
+    calls.clear()
+    u2, v2 = escape_bounds(pb, u, v)
+    assert np.array_equal(u2, u) and v2 == v
+    assert calls == [ESCAPE_POINTS]   # one scan of the one coordinate on its bound
+
+
+def test_best_map_polishes_and_escapes_a_start_stuck_on_a_bound():
+    pb, _ = _bound_trap(peak=12.0)
+    u, v = best_map(pb, np.array([[0.05, 0.3], [0.1, -0.2]]))
+    assert abs(u[0] - 0.6985) < 1e-3 and abs(v - 8.5038) < 1e-3

@@ -133,7 +133,7 @@ OPTIONS = {
     "--initial": st.sampled_from(["release", "impulse", "modes:0", "modes:-1", "modes:3",
                                   "modes:x", "bogus"]),
     "--offset": st.sampled_from(["fit", "none", "maybe"]), "--target-ess": numbers,
-    "--max-steps": numbers, "--seed": numbers,
+    "--max-steps": numbers, "--seed": numbers, "--jobs": numbers,
 }
 
 
