@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam.inference.coordinates import PREBURN_STEPS, SamplerCoordinates, sample_in_coordinates
-from bayesbeam.inference.optimum import best_map, map_bounds, newton_polish
+from bayesbeam.inference.optimum import SCREEN_POLISHED, best_map, map_bounds, newton_polish
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import Model
 from bayesbeam.trials.trial import Trial
@@ -126,9 +126,12 @@ class _Engine:
             # The current MAP (Engine.embed) is usually the first row itself: once.
             U = np.array([st.u] + [u for u in U if not np.array_equal(u, st.u)])
         # The search of `bayesbeam fit` (optimum.best_map: scaled L-BFGS-B passes in the
-        # sampler's coordinates from each start, the best Newton-polished); the current
-        # MAP is among the starts, and local_map never returns below its start.
-        u, v = best_map(pb, U)
+        # sampler's coordinates from each start, the best Newton-polished, here only the
+        # best SCREEN_POLISHED: on a whole record each polish costs tens of seconds, a
+        # screen's MAP only ranks the candidates, and the one sampled gets its chains'
+        # best point); the current MAP is among the starts, and local_map never returns
+        # below its start.
+        u, v = best_map(pb, U, polished=SCREEN_POLISHED)
         if u is not None and v > st.lp:
             st.u, st.lp = u, v
         if st.u is None or not np.isfinite(st.lp):
