@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
             rng = np.random.default_rng(0)
             u = pb.priors.to_u(scan_E(pb, _start_points(pb, rng, 1)))[0]
             U = u + 1e-4 * rng.standard_normal((walker_count(None, pb.ndim) // 2, pb.ndim))
-            with ParallelLogProb(pb, helpers=1) as lp:
+            with ParallelLogProb(pb.log_prob, helpers=1) as lp:
                 lp(U)  # decides, and starts the helper if the batch is long enough
                 lp(U)
                 ts, tp = [], []

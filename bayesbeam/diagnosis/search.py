@@ -409,7 +409,6 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     (:class:`~bayesbeam.inference.parallel.ParallelLogProb`).
     """
     from bayesbeam.inference import fit as fitmod
-    from bayesbeam.inference.parallel import ParallelLogProb
     from bayesbeam.inference.results import FitResult, make_provenance
     from bayesbeam.inference.settings import walker_count
     from bayesbeam.stats.sampling import NotConvergedWarning, init_walkers
@@ -420,11 +419,10 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng,
                       scale=fitmod.walker_scale(pb, u_map))
     t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught, \
-            ParallelLogProb(pb, helpers=helpers) as log_prob:
+    with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
         chain = sample_in_coordinates(
-            log_prob, SamplerCoordinates(pb), u0, seed=seed,
+            pb.log_prob, SamplerCoordinates(pb), u0, seed=seed, helpers=helpers,
             max_steps=int(settings["max_steps"]), min_steps=int(settings["min_steps"]),
             target_ess=float(settings["target_ess"]), names=pb.names, progress=False,
             # As in fit(): a discarded first run returns stranded walkers.

@@ -18,6 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 from scipy.special import logsumexp
 
+from bayesbeam.inference.parallel import ParallelLogProb
 from bayesbeam.inference.problem import BETA1, Problem
 from bayesbeam.stats.convergence import autocorr_time, ess_rhat
 from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform
@@ -185,7 +186,8 @@ def chain_in_u(chain: Chain, u_samples: np.ndarray, log_prob: np.ndarray | None 
 
 
 def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: Coordinates,
-                          u0: np.ndarray, *, moves: str = "de", **kwargs: Any) -> Chain:
+                          u0: np.ndarray, *, moves: str = "de", helpers: int = 0,
+                          **kwargs: Any) -> Chain:
     """Run emcee (:func:`~bayesbeam.stats.sampling.run_emcee`) in ``coords``.
 
     The walkers start at ``coords.to_v(u0)`` and move on ``log_prob(u(v)) + log|∂u/∂v|``
@@ -203,6 +205,10 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
         Initial walkers in ``u``.
     moves : str
         A name of :data:`~bayesbeam.stats.sampling.MOVE_SETS`.
+    helpers : int
+        Processes that share each batch of ``log_prob`` with this one
+        (:class:`~bayesbeam.inference.parallel.ParallelLogProb`; ``log_prob`` must then
+        be picklable, e.g. a problem's bound ``log_prob``). The chain is the same.
     **kwargs
         Passed to :func:`~bayesbeam.stats.sampling.run_emcee` (``seed``, ``max_steps``,
         ``target_ess``, ``names``, ``preburn``, ...).
@@ -211,10 +217,11 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
     -------
     Chain
     """
-    def log_prob_v(V: np.ndarray) -> np.ndarray:
-        return log_prob(coords.to_u(V)) + coords.log_jacobian(V)
+    with ParallelLogProb(log_prob, helpers=helpers) as shared:
+        def log_prob_v(V: np.ndarray) -> np.ndarray:
+            return shared(coords.to_u(V)) + coords.log_jacobian(V)
 
-    chain = run_emcee(log_prob_v, coords.to_v(u0), moves=named_moves(moves), **kwargs)
+        chain = run_emcee(log_prob_v, coords.to_v(u0), moves=named_moves(moves), **kwargs)
     if coords.identity:
         return chain
     return chain_in_u(chain, coords.to_u(chain.samples),

@@ -34,7 +34,7 @@ from bayesbeam.inference.coordinates import (
 )
 from bayesbeam.inference.mesh import converge_mesh
 from bayesbeam.inference.optimum import best_map, diagonal_sd, local_map
-from bayesbeam.inference.parallel import ParallelLogProb
+from bayesbeam.inference.parallel import check_helpers
 from bayesbeam.inference.problem import Problem, amplitude_names, record_f1
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
@@ -442,10 +442,10 @@ def _sampler_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
     bad = sorted(set(opts) - set(_SAMPLER_OPTIONS))
     if bad:
         raise FitError(f"unknown sampler_options {bad}; allowed: {list(_SAMPLER_OPTIONS)}")
-    helpers = opts.get("helpers", 0)
-    if isinstance(helpers, bool) or not isinstance(helpers, int) or helpers < 0:
-        raise FitError(f"sampler_options: helpers must be a non-negative integer (helper "
-                       f"processes that share the sampler's batches), got {helpers!r}")
+    try:  # checked here too, before the expensive MAP search
+        check_helpers(opts.get("helpers", 0))
+    except ValueError as exc:
+        raise FitError(f"sampler_options: {exc}") from None
     if "moves" in opts:  # checked here, before the expensive MAP search
         try:
             named_moves(opts["moves"])
@@ -570,24 +570,22 @@ def fit(
     scale = walker_scale(problem, u_map)
     u0 = init_walkers(problem.log_prob, u_map, nwalkers, rng=rng, scale=scale)
     coords = SamplerCoordinates(problem)
-    helpers = sampler_kw.pop("helpers", 0)
-    with ParallelLogProb(problem, helpers=helpers) as log_prob:
-        chain: Chain = sample_in_coordinates(
-            log_prob,
-            coords,
-            u0,
-            seed=seed,
-            max_steps=max_steps,
-            min_steps=min_steps,
-            target_ess=target_ess,
-            backend_path=checkpoint_path(outdir, resume),
-            resume=resume,
-            progress=progress,
-            names=problem.names,
-            preburn=PREBURN_STEPS,
-            label=f"fit {problem.model.name}: emcee",
-            **sampler_kw,
-        )
+    chain: Chain = sample_in_coordinates(
+        problem.log_prob,
+        coords,
+        u0,
+        seed=seed,
+        max_steps=max_steps,
+        min_steps=min_steps,
+        target_ess=target_ess,
+        backend_path=checkpoint_path(outdir, resume),
+        resume=resume,
+        progress=progress,
+        names=problem.names,
+        preburn=PREBURN_STEPS,
+        label=f"fit {problem.model.name}: emcee",
+        **sampler_kw,
+    )
     samples = chain.samples
     X = problem.theta(samples.reshape(-1, ndim))
     derived = {k: v.reshape(samples.shape[:2]) for k, v in problem.derived(X).items()}

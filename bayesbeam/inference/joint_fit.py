@@ -33,7 +33,6 @@ from bayesbeam.inference.fit import _sampler_options, checkpoint_path, find_map,
 from bayesbeam.inference.joint import TIP_DISTANCE, JointProblem, PoolCoordinates
 from bayesbeam.inference.mesh import converge_mesh
 from bayesbeam.inference.optimum import escape_bounds, local_map
-from bayesbeam.inference.parallel import ParallelLogProb
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
@@ -385,14 +384,12 @@ def fit_joint(
     nwalkers = walker_count(nwalkers, ndim)
     scale = walker_scale(jp, u_map)
     u0 = init_walkers(jp.log_prob, u_map, nwalkers, rng=rng, scale=scale)
-    helpers = sampler_kw.pop("helpers", 0)
-    with ParallelLogProb(jp, helpers=helpers) as log_prob:
-        chain: Chain = sample_in_coordinates(
-            log_prob, coords, u0, seed=seed, max_steps=max_steps, min_steps=min_steps,
-            target_ess=target_ess, backend_path=checkpoint_path(outdir, resume),
-            resume=resume, progress=progress, names=jp.names, preburn=PREBURN_STEPS,
-            label=f"joint {model.name}: emcee", **sampler_kw,
-        )
+    chain: Chain = sample_in_coordinates(
+        jp.log_prob, coords, u0, seed=seed, max_steps=max_steps, min_steps=min_steps,
+        target_ess=target_ess, backend_path=checkpoint_path(outdir, resume), resume=resume,
+        progress=progress, names=jp.names, preburn=PREBURN_STEPS,
+        label=f"joint {model.name}: emcee", **sampler_kw,
+    )
     settings = {
         "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh),
         "initial": initial if isinstance(initial, str) else list(initial),

@@ -31,7 +31,7 @@ def test_split_batches_equal_the_serial_values_bit_for_bit(monkeypatch):
     pb = Problem(read_trial(DATA / "beam1-trial1.toml"), "viscous+sh+ar1_noise",
                  n_elements=8)
     U = _batch(pb, 13, seed=3)
-    with ParallelLogProb(pb, helpers=1) as lp:
+    with ParallelLogProb(pb.log_prob, helpers=1) as lp:
         first = lp(U)             # serial, and starts the helper
         split = lp(U)
         assert lp.batches_split == 1
@@ -45,7 +45,7 @@ def test_split_batches_equal_the_serial_values_bit_for_bit(monkeypatch):
 def test_a_cheap_problem_never_starts_helpers():
     # One row of a 4-element viscous model takes microseconds, far under MIN_SECONDS.
     pb = Problem(read_trial(DATA / "beam1-trial1.toml"), "viscous", n_elements=4)
-    with ParallelLogProb(pb, helpers=1) as lp:
+    with ParallelLogProb(pb.log_prob, helpers=1) as lp:
         for _ in range(3):
             out = lp(_batch(pb, 8, seed=1))
         assert lp._pool is None and lp.batches_split == 0
@@ -56,7 +56,7 @@ def test_a_helper_that_dies_is_reported_and_its_rows_computed_here(monkeypatch):
     monkeypatch.setattr(par, "MIN_SECONDS", 0.0)
     pb = Problem(read_trial(DATA / "beam1-trial1.toml"), "viscous", n_elements=4)
     U = _batch(pb, 6, seed=2)
-    with ParallelLogProb(pb, helpers=1) as lp:
+    with ParallelLogProb(pb.log_prob, helpers=1) as lp:
         lp(U)
         lp(U)                     # the helper is up
         for proc in list(lp._pool._processes.values()):
@@ -71,4 +71,4 @@ def test_a_helper_that_dies_is_reported_and_its_rows_computed_here(monkeypatch):
 @pytest.mark.parametrize("helpers", [-1, 1.5, True])
 def test_bad_helper_counts_are_refused(helpers):
     with pytest.raises(ValueError, match="non-negative integer"):
-        ParallelLogProb(object(), helpers=helpers)
+        ParallelLogProb(len, helpers=helpers)
