@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam.inference.coordinates import PREBURN_STEPS, SamplerCoordinates, sample_in_coordinates
-from bayesbeam.inference.optimum import SCREEN_POLISHED, best_map, map_bounds, newton_polish
+from bayesbeam.inference.optimum import SCREEN_POLISHED, best_map, chain_map
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import Model
 from bayesbeam.trials.trial import Trial
@@ -305,12 +305,9 @@ class _Engine:
                  f"{score.log_evidence_err:.2f}, elpd = {score.loo.elpd_loo:.1f} "
                  f"({seconds:.0f} s)")
         chain = score.result.chain
-        lp = np.asarray(chain.flat_log_prob, dtype=float)
-        if lp.size and np.isfinite(lp).any() and np.nanmax(lp) > st.lp + 1e-6:
-            pb = st.problem
-            i = int(np.nanargmax(lp))
-            u, v = np.asarray(chain.flat_samples[i], dtype=float), float(lp[i])
-            u, v = newton_polish(pb.log_prob, u, v, map_bounds(pb))
+        pb = st.problem
+        u, v = chain_map(pb, chain.flat_samples, chain.flat_log_prob, st.u, st.lp)
+        if v > st.lp:
             self.log(f"  {pb.model.name}: MAP moved {v - st.lp:.2f} up, to the chains' best "
                      "point (polished)")
             st.u, st.lp = u, v

@@ -33,7 +33,7 @@ from bayesbeam.inference.coordinates import (
     sample_in_coordinates,
 )
 from bayesbeam.inference.mesh import converge_mesh
-from bayesbeam.inference.optimum import best_map, diagonal_sd, local_map
+from bayesbeam.inference.optimum import best_map, chain_map, diagonal_sd, local_map
 from bayesbeam.inference.parallel import check_helpers
 from bayesbeam.inference.problem import Problem, amplitude_names, record_f1
 from bayesbeam.inference.results import FitResult, make_provenance
@@ -587,6 +587,9 @@ def fit(
         **sampler_kw,
     )
     samples = chain.samples
+    # The chains may have found a higher optimum than the search's (report the higher).
+    lp_search = lp_map
+    u_map, lp_map = chain_map(problem, samples, chain.log_prob, u_map, lp_map)
     X = problem.theta(samples.reshape(-1, ndim))
     derived = {k: v.reshape(samples.shape[:2]) for k, v in problem.derived(X).items()}
     settings = {
@@ -600,13 +603,10 @@ def fit(
         "seed": seed,
         "n_samples_data": int(trial.times.size),
         "log_prob_map": lp_map,
+        "log_prob_map_search": lp_search,
         "total_seconds": time.perf_counter() - t_start,
         "noise": "ar1" if "rho" in problem.names else "iid",
-        "sampler_coordinates": (
-            "u" if coords.identity else
-            "u with (" + ", ".join(problem.names[j] for j in coords.group)
-            + ") as log total first-mode damping and log ratios"
-        ),
+        "sampler_coordinates": coords.describe(),
     }
     provenance = make_provenance(
         {

@@ -26,6 +26,7 @@ from bayesbeam._util import finite_json
 from bayesbeam.inference.adequacy import assess
 from bayesbeam.inference.coordinates import (
     PREBURN_STEPS,
+    ClampCoordinates,
     SamplerCoordinates,
     sample_in_coordinates,
 )
@@ -214,24 +215,50 @@ class _Coordinates:
     per trial or pooled alike, as log total first-mode damping and log ratios
     (:class:`~bayesbeam.inference.fit.SamplerCoordinates` on those ``log x`` columns, unit
     Jacobian): with one mode in band the data fix each trial's total damping and leave
-    the split between laws loose, a ridge these coordinates straighten.
+    the split between laws loose, a ridge these coordinates straighten. Where E and the
+    clamp spring are both shared, or both per trial, they move as log ω1² and log k
+    (:class:`~bayesbeam.inference.coordinates.ClampCoordinates`, the first trial's beam
+    for a shared pair): one mode in band fixes ω1 and leaves a curved ridge between the
+    two. Each trial's laws then take their scales at the point's E and ω1, as in
+    :class:`~bayesbeam.inference.coordinates.SamplerCoordinates`. A pair pooled, or split
+    between shared and per trial, stays in ``u``.
     """
 
     def __init__(self, jp: JointProblem) -> None:
         self.pool = PoolCoordinates(jp)
+        # The clamp maps first: each trial's laws read log E and log ω1² from its pair.
+        self.clamps: list[ClampCoordinates] = []
+        clamp_of: dict[str, ClampCoordinates] = {}
+        pair = ("E", "root_spring")
+        if not any(n in jp.pooled for n in pair) and (
+                (pair[0] in jp.shared) == (pair[1] in jp.shared)):
+            for label, pb in zip(jp.labels, jp.problems, strict=True):
+                names = [n if n in jp.shared else f"{n}[{label}]" for n in pair]
+                if not all(n in jp.names for n in names):
+                    continue
+                cols = tuple(jp.names.index(n) for n in names)
+                same = [c for c in self.clamps if (c.iE, c.ik) == cols]
+                if same:  # a shared pair: the first trial's map
+                    clamp_of[label] = same[0]
+                    continue
+                clamp = ClampCoordinates.for_problem(pb, *cols)
+                if clamp is not None:
+                    self.clamps.append(clamp)
+                    clamp_of[label] = clamp
         self.laws = []
         for label, pb in zip(jp.labels, jp.problems, strict=True):
             sc = SamplerCoordinates(pb)
             names = [f"{pb.names[j]}_z[{label}]" if pb.names[j] in jp.pooled
                      else f"{pb.names[j]}[{label}]" for j in sc.group]
-            if not sc.identity and all(n in jp.names for n in names):
+            if sc.group.size and all(n in jp.names for n in names):
                 self.laws.append(SamplerCoordinates.on_columns(
-                    [jp.names.index(n) for n in names], sc.c))
+                    [jp.names.index(n) for n in names], sc.c, powers=sc.powers,
+                    ref=sc.ref, coupled=clamp_of.get(label)))
 
     @property
     def identity(self) -> bool:
         """True when the sampler works in ``u`` itself."""
-        return self.pool.identity and not self.laws
+        return self.pool.identity and not self.laws and not self.clamps
 
     def describe(self) -> str:
         """One line for the settings record."""
@@ -241,35 +268,49 @@ class _Coordinates:
         if self.laws:
             parts.append(f"{len(self.laws)} trial(s)' damping laws as log total first-mode "
                          "damping and log ratios")
+        if self.clamps:
+            parts.append(f"{len(self.clamps)} E and clamp spring pair(s) as log first-mode "
+                         "ω² and log root_spring")
         return "u" if not parts else "u with " + "; ".join(parts)
 
     def to_v(self, U: np.ndarray) -> np.ndarray:
         """Map sampling-space points to sampler coordinates, shape kept."""
-        V = self.pool.to_v(U)
-        for m in self.laws:
+        X = self.pool.to_v(U)  # pooled columns as log x; E and k untouched
+        V = X.copy()  # the laws read X while they write V
+        for m in self.clamps:
             V = m.to_v(V)
+        for m in self.laws:
+            m.laws_to_v(X, V)
         return V
 
     def to_u(self, V: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`to_v`."""
-        U = np.array(V, dtype=float)
-        for m in reversed(self.laws):
-            U = m.to_u(U)
-        return self.pool.to_u(U)
+        V = np.asarray(V, dtype=float)
+        X = V.copy()
+        for m in self.clamps:  # disjoint columns: each reads its own v_E and log k
+            X = m.to_u(X)
+        for m in self.laws:
+            m.laws_to_u(V, X)
+        return self.pool.to_u(X)
 
     @property
     def free(self) -> np.ndarray:
-        """Columns of ``v`` with no bound: the pooled ``z`` and the laws' total and ratios."""
-        cols = [z for _, _, z in self.pool.groups] + [m.group for m in self.laws]
+        """Columns of ``v`` with no bound: the pooled ``z``, the laws' total and ratios, v_E."""
+        cols = ([z for _, _, z in self.pool.groups] + [m.group for m in self.laws]
+                + [m.free for m in self.clamps])
         return np.unique(np.concatenate(cols)) if cols else np.array([], dtype=int)
 
     def log_jacobian(self, V: np.ndarray) -> np.ndarray:
-        """``log |∂u/∂v|``: the pool map's (the law maps' is 1).
+        """``log |∂u/∂v|``: the pool map's plus the clamp maps' (the law maps' is 1).
 
-        The pool map's depends on the spread columns only, which no law map moves, so it
-        reads them in ``V`` directly (no inverse law maps on every step).
+        The pool map's depends on the spread columns only and each clamp map's on its E
+        and spring columns, which no other map moves (a pooled E or spring has no clamp
+        map), so each reads its columns in ``V`` directly.
         """
-        return self.pool.log_jacobian(V)
+        out = self.pool.log_jacobian(V)
+        for m in self.clamps:
+            out = out + m.log_jacobian(V)
+        return out
 
 
 def _view(problem: Any, samples_u: np.ndarray, log_prob: np.ndarray, joint: FitResult,

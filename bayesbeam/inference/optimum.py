@@ -30,8 +30,8 @@ from bayesbeam.inference.coordinates import Coordinates, SamplerCoordinates
 from bayesbeam.inference.problem import Problem
 from bayesbeam.stats.numdiff import fd_gradient, fd_hessian
 
-__all__ = ["best_map", "curvature_scales", "diagonal_sd", "escape_bounds", "local_map",
-           "map_bounds", "newton_polish"]
+__all__ = ["best_map", "chain_map", "curvature_scales", "diagonal_sd", "escape_bounds",
+           "local_map", "map_bounds", "newton_polish"]
 
 #: L-BFGS-B passes at most per start; a pass that gains under :data:`PASS_GAIN` nats ends
 #: the search. On Al 50 cm #0 the second and third passes gained several nats each.
@@ -325,6 +325,41 @@ def escape_bounds(problem: Any, u: np.ndarray, v: float, *, maxiter: int = 300,
         return u, v
     u2, v2 = local_map(problem, P[k], maxiter=maxiter, coords=coords)
     return (u2, v2) if v2 > v else (u, v)
+
+
+def chain_map(problem: Any, samples: np.ndarray, log_prob: np.ndarray, u: np.ndarray,
+              v: float) -> tuple[np.ndarray, float]:
+    """Return the MAP moved to the chain's best point (Newton-polished) where higher.
+
+    A search stops at the best local optimum its starts reach; the chains of the
+    sampler explore the whole posterior and can find a higher one (the shipped beam 1,
+    trial 1, ``viscous+sh+root_spring+ar1_noise``: the search's 12800.46 against the
+    chains' 12803.93, a split of the damping between the laws that no start reached).
+
+    Parameters
+    ----------
+    problem : Problem
+        Anything with a vectorised ``log_prob`` and ``priors.bounds_u``.
+    samples : ndarray, shape (..., ndim)
+        The chain's points in the sampling space.
+    log_prob : ndarray, shape (...)
+        Their log densities.
+    u : ndarray, shape (ndim,)
+        The search's MAP, with ``v = log_prob(u)``.
+    v : float
+
+    Returns
+    -------
+    u : ndarray, shape (ndim,)
+    v : float
+        Never below the ``v`` given.
+    """
+    lp = np.asarray(log_prob, dtype=float).ravel()
+    if not (lp.size and np.isfinite(lp).any() and np.nanmax(lp) > v + 1e-6):
+        return u, v
+    i = int(np.nanargmax(lp))
+    U = np.asarray(samples, dtype=float).reshape(lp.size, -1)
+    return newton_polish(problem.log_prob, U[i], float(lp[i]), map_bounds(problem))
 
 
 def newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float,

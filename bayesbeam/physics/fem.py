@@ -34,10 +34,12 @@ import numbers
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.linalg as sla
 
 from bayesbeam.physics.beam import Beam
 
-__all__ = ["FEMError", "FEModel", "assemble", "mesh_nodes", "static_tip_shape"]
+__all__ = ["FEMError", "FEModel", "assemble", "mesh_nodes", "release_gain", "spring_eigenvalue",
+           "static_tip_shape"]
 
 # Gauss–Legendre rule on [0, 1]: 5 points integrate polynomials up to degree 9
 # exactly; the integrands here reach degree 7 (linear factor x cubic x cubic) in M
@@ -495,6 +497,92 @@ def static_tip_shape(
     full[0::2] = w
     full[1::2] = theta
     return full[_free_dofs(ne + 1, fe.root_dof)]
+
+
+def spring_eigenvalue(fe: FEModel, ratio: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First eigenvalue per unit E with a root spring, and its elasticity in the spring.
+
+    With stiffness ``E K + k K_root`` (K per unit E, ``K_root`` the unit root spring),
+    ``ω1² = E μ(k/E)``, where ``μ(r)`` is the lowest eigenvalue of ``(K + r K_root, M)``:
+    the first natural frequency depends on E and the clamp stiffness k only through E
+    and their ratio, whatever the beam's spanwise properties and attached masses. Its
+    elasticity ``e(r) = d log μ / d log r = r φ'(0)² / μ`` (φ the mass-normalised first
+    mode; Hellmann–Feynman) lies in (0, 1): μ is concave and increasing in r (a minimum
+    of Rayleigh quotients linear in r) with ``μ(0) >= 0``. ``e → 1`` as the clamp
+    softens (a rigid beam rotating on its spring, ω1² = 3k/(rhoA L³) for a uniform
+    beam) and ``e → 0`` as it stiffens (the rigid clamp).
+
+    Parameters
+    ----------
+    fe : FEModel
+        Assembled with ``root_dof=True``.
+    ratio : array_like, shape (p,)
+        ``r = k/E`` in m³/rad (N m/rad over Pa), positive.
+
+    Returns
+    -------
+    mu : ndarray, shape (p,)
+        ``ω1²/E`` in rad²/(s² Pa).
+    elasticity : ndarray, shape (p,)
+        ``d log μ / d log r``, dimensionless.
+
+    Raises
+    ------
+    FEMError
+        Without a root rotation dof, or for a ratio that is not positive and finite.
+    """
+    if not fe.root_dof:
+        raise FEMError("spring_eigenvalue needs the root rotation dof: assemble(beam, n, "
+                       "root_dof=True)")
+    r = np.atleast_1d(np.asarray(ratio, dtype=float))
+    if not (np.all(np.isfinite(r)) and np.all(r > 0)):
+        raise FEMError(f"the spring-to-E ratio must be positive and finite, got {ratio!r}")
+    mu = np.empty(r.size)
+    slope = np.empty(r.size)
+    for i, ri in enumerate(r):
+        w, phi = sla.eigh(fe.K + ri * fe.K_root, fe.M, subset_by_index=[0, 0])
+        mu[i] = w[0]
+        slope[i] = phi[:, 0] @ fe.K_root @ phi[:, 0]  # eigh: φᵀ M φ = 1
+    return mu, r * slope / mu
+
+
+def release_gain(fe: FEModel, ratio: np.ndarray, sensor_x: float) -> np.ndarray:
+    """First mode's displacement at the sensor per unit tip deflection released.
+
+    Released from the static shape under a tip load (unit tip deflection, ``ŝ``), the
+    first mode starts with ``q1 = φ1ᵀ M ŝ`` and shows ``φ1(x_s) q1`` at the sensor (φ1
+    mass-normalised; the product does not depend on its sign). With stiffness
+    ``E K + k K_root`` both ``ŝ`` and φ1 depend on E and k only through ``r = k/E``.
+
+    Parameters
+    ----------
+    fe : FEModel
+        Assembled with ``root_dof=True``.
+    ratio : array_like, shape (p,)
+        ``r = k/E`` in m³/rad, positive.
+    sensor_x : float
+        Sensor position in m from the clamp.
+
+    Returns
+    -------
+    ndarray, shape (p,)
+        Dimensionless (m at the sensor per m at the tip).
+
+    Raises
+    ------
+    FEMError
+        As :func:`spring_eigenvalue`.
+    """
+    spring_eigenvalue(fe, np.atleast_1d(ratio)[:1])  # the same checks
+    r = np.atleast_1d(np.asarray(ratio, dtype=float))
+    row = fe.shape(np.array([sensor_x]))[0]
+    out = np.empty(r.size)
+    for i, ri in enumerate(r):
+        _, phi = sla.eigh(fe.K + ri * fe.K_root, fe.M, subset_by_index=[0, 0])
+        shape = static_tip_shape(fe, 1.0, ri)
+        shape = shape / (fe.tip @ shape)
+        out[i] = (row @ phi[:, 0]) * (phi[:, 0] @ fe.M @ shape)
+    return out
 
 
 def _finite_float(name: str, value: object) -> float:

@@ -249,6 +249,7 @@ def open_checkpoint(
     names: Sequence[str],
     resume: bool,
     flush_seconds: float,
+    space: str = "u",
 ) -> tuple[CheckpointBackend, int, float]:
     """Open ``path`` for a run: continue its chain (``resume``) or start it afresh.
 
@@ -267,6 +268,11 @@ def open_checkpoint(
         ``False`` overwrites it.
     flush_seconds : float
         See :class:`CheckpointBackend`.
+    space : str
+        The coordinates the walkers move in (a description); a resumed checkpoint that
+        records other coordinates is refused: its positions would mean other points.
+        Checkpoints written before this record existed carry none and are taken as
+        they are.
 
     Returns
     -------
@@ -280,7 +286,8 @@ def open_checkpoint(
     Raises
     ------
     SamplingError
-        If a checkpoint to resume has another shape, seed or parameter names.
+        If a checkpoint to resume has another shape, seed, parameter names or
+        coordinates.
     """
     names = tuple(names)
     prior_calls, prior_seconds = 0, 0.0
@@ -307,10 +314,16 @@ def open_checkpoint(
                 f"checkpoint {path} has parameters {json.loads(meta['names'])}, "
                 f"not {list(names)}; resume=False starts over"
             )
+        if "space" in meta and str(meta["space"]) != space:
+            raise SamplingError(
+                f"checkpoint {path} was sampled in other coordinates ({meta['space']!r}, "
+                f"now {space!r}; a newer version of the package reparameterises this "
+                "model); resume=False starts over"
+            )
         prior_calls = int(meta.get("n_calls", 0))
         prior_seconds = float(meta.get("seconds", 0.0))
-        backend.meta.update(seed=seed, names=json.dumps(list(names)))
+        backend.meta.update(seed=seed, names=json.dumps(list(names)), space=space)
     else:
-        backend.meta = {"seed": seed, "names": json.dumps(list(names))}
+        backend.meta = {"seed": seed, "names": json.dumps(list(names)), "space": space}
         backend.reset(nwalkers, ndim)
     return backend, prior_calls, prior_seconds

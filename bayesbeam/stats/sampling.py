@@ -597,6 +597,7 @@ def run_emcee(
     checkpoint_seconds: float = 10.0,
     progress: bool | None = None,
     names: Sequence[str] | None = None,
+    space: str = "u",
     moves: Any = None,
     preburn: int = 0,
     label: str = "emcee",
@@ -645,6 +646,9 @@ def run_emcee(
         log lines); ``None`` shows it only on a terminal or in Jupyter.
     names : sequence of str, optional
         Parameter names (default ``p0, p1, ...``).
+    space : str, default "u"
+        A description of the coordinates ``log_prob`` takes, recorded in the
+        checkpoint; resuming one recorded in other coordinates is refused.
     moves : optional
         emcee moves, passed to :class:`emcee.EnsembleSampler` (default stretch move).
     preburn : int, default 0
@@ -712,6 +716,7 @@ def run_emcee(
             names=names,
             resume=resume,
             flush_seconds=checkpoint_seconds,
+            space=space,
         )
 
     fn = _CountingLogProb(log_prob, ndim, prior_calls)

@@ -330,3 +330,29 @@ def test_trials_with_their_own_initial_kinds(trials):
     assert all(np.all(np.isfinite(d)) for d in done)
     with pytest.raises(JointError, match="one per trial"):
         JointProblem(trials, "viscous", n_elements=NE, initial=kinds[:2])
+
+
+def test_clamp_coordinates_in_a_joint_fit(trials):
+    """E and the clamp spring, both shared or both per trial, move as log ω1² and log k
+    (one map per pair); a pair split between shared and per trial stays in u."""
+    from bayesbeam.inference.joint_fit import _Coordinates
+
+    same = [trials[0], trials[2]]  # one beam: the shared spring's priors agree
+    js = JointProblem(same, "viscous+kv+root_spring", shared=("E", "root_spring"),
+                      n_elements=NE)
+    jt = JointProblem(same, "viscous+kv+root_spring", shared=(), n_elements=NE)
+    jm = JointProblem(same, "viscous+kv+root_spring", shared=("E",), n_elements=NE)
+    cs, ct, cm = _Coordinates(js), _Coordinates(jt), _Coordinates(jm)
+    assert [(c.iE, c.ik) for c in cs.clamps] == [(js.names.index("E"),
+                                                  js.names.index("root_spring"))]
+    assert len(ct.clamps) == 2 and not cm.clamps
+    # Each trial's laws take their scales at its pair's E and ω1 (only with a map).
+    assert [m.coupled for m in cs.laws] == [cs.clamps[0]] * 2
+    assert [m.coupled.iE for m in ct.laws] == [jt.names.index(f"E[{lb}]") for lb in jt.labels]
+    assert [m.coupled for m in cm.laws] == [None, None]
+    assert "clamp spring" in cs.describe()
+    for c, p in ((cs, js), (ct, jt)):
+        U = p.priors.sample_u(np.random.default_rng(4), 6)
+        np.testing.assert_allclose(c.to_u(c.to_v(U)), U, rtol=0, atol=1e-10)
+        for v in c.to_v(U[:2]):
+            assert c.log_jacobian(v) == pytest.approx(_fd_log_det(c.to_u, v), abs=1e-5)

@@ -3,10 +3,12 @@
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from bayesbeam.inference.optimum import (
     ESCAPE_POINTS,
     best_map,
+    chain_map,
     curvature_scales,
     diagonal_sd,
     escape_bounds,
@@ -175,3 +177,27 @@ def test_best_map_polishes_and_escapes_a_start_stuck_on_a_bound():
     pb, _ = _bound_trap(peak=12.0)
     u, v = best_map(pb, np.array([[0.05, 0.3], [0.1, -0.2]]))
     assert abs(u[0] - 0.6985) < 1e-3 and abs(v - 8.5038) < 1e-3
+
+
+def test_chain_map_moves_to_a_higher_mode_the_chain_found_and_polishes_it():
+    # Two Gaussian bumps in 2-D: a local mode at (-1, 0), log density 0, and the
+    # global one at (2, 1), log density 3 (widths 0.3 and 0.5: the bumps do not overlap,
+    # so each mode sits at its centre to ~1e-9).
+    def log_prob(U):
+        U = np.atleast_2d(U)
+        a = -0.5 * np.sum(((U - [-1.0, 0.0]) / 0.3) ** 2, axis=1)
+        b = 3.0 - 0.5 * np.sum(((U - [2.0, 1.0]) / 0.5) ** 2, axis=1)
+        return np.logaddexp(a, b)
+
+    pb = SimpleNamespace(log_prob=log_prob,
+                         priors=SimpleNamespace(bounds_u=np.array([[-5.0, 5.0]] * 2)))
+    u0 = np.array([-1.0, 0.0])
+    v0 = float(log_prob(u0)[0])
+    near = np.array([[[-1.1, 0.05]], [[2.2, 0.8]]])  # (steps, walkers, ndim)
+    u, v = chain_map(pb, near, log_prob(near.reshape(-1, 2)).reshape(2, 1), u0, v0)
+    np.testing.assert_allclose(u, [2.0, 1.0], atol=1e-6)
+    assert v == pytest.approx(3.0, abs=1e-9)
+    # A chain that found nothing higher leaves the MAP as it was.
+    low = near[:1]
+    u2, v2 = chain_map(pb, low, log_prob(low.reshape(-1, 2)).reshape(1, 1), u0, v0)
+    assert v2 == v0 and np.array_equal(u2, u0)

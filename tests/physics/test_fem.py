@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import scipy.linalg as sl
@@ -9,7 +11,15 @@ from numpy.polynomial import Polynomial as P
 from scipy.optimize import brentq
 
 from bayesbeam.physics.beam import Beam, BeamError, Gradient, PointMass, Segment
-from bayesbeam.physics.fem import FEMError, FEModel, assemble, mesh_nodes, static_tip_shape
+from bayesbeam.physics.fem import (
+    FEMError,
+    FEModel,
+    assemble,
+    mesh_nodes,
+    release_gain,
+    spring_eigenvalue,
+    static_tip_shape,
+)
 
 # The source study's single-ply beam (issue 2 benchmark) with a physical E.
 L = 0.3048
@@ -601,3 +611,77 @@ def test_shape_rows():
             assert row[0] == 1.0 and np.count_nonzero(row) == 1
         else:
             assert not np.any(fe.shape(0.0, derivative=1))
+
+
+def _spring_root(kappa: float) -> float:
+    """λ1 of a uniform cantilever on a rotational root spring, κ = k L/(E I).
+
+    From w(0) = 0, E I w''(0) = k w'(0), w''(L) = w'''(L) = 0:
+    κ (1 + cos λ cosh λ) + λ (cos λ sinh λ - sin λ cosh λ) = 0, which tends to the
+    clamped equation as κ → ∞ and to λ⁴ = 3κ (a rigid beam on its spring) as κ → 0.
+    """
+    def f(x):
+        return (kappa * (1 + np.cos(x) * np.cosh(x))
+                + x * (np.cos(x) * np.sinh(x) - np.sin(x) * np.cosh(x)))
+
+    return brentq(f, 1e-9, BETA_L_REF[0], xtol=1e-15, rtol=8.9e-16)
+
+
+@pytest.mark.parametrize("kappa", [0.05, 1.0, 10.0, 100.0, 1e4])
+def test_spring_eigenvalue_matches_the_characteristic_equation(kappa):
+    beam = uniform_beam()
+    fe = assemble(beam, 32, root_dof=True)
+    mu, e = spring_eigenvalue(fe, [kappa * I_REF / L])
+    lam = (mu[0] * RHOA * L**4 / I_REF) ** 0.25
+    # 32 elements: the clamped first root is within 8.5e-9 (REF_ERR_32). Rounding
+    # takes over at both ends: at κ = 0.05 the condition number of (K, M) is ~1e11
+    # (μ ~1e-6 relative), and a stiff spring adds an entry κ times the root element's
+    # stiffness (3e-8 at κ = 1e4).
+    tol = 1e-8 if 1 <= kappa <= 100 else 1e-6
+    assert lam == pytest.approx(_spring_root(kappa), rel=tol)
+    # The elasticity d log μ / d log r against a central difference of the roots.
+    h = 1e-4
+    fd = 4 * (math.log(_spring_root(kappa * math.exp(h)))
+              - math.log(_spring_root(kappa * math.exp(-h)))) / (2 * h)
+    assert e[0] == pytest.approx(fd, abs=1e-5)
+    assert 0 < e[0] < 1
+
+
+def test_spring_eigenvalue_limits_and_errors():
+    fe = assemble(uniform_beam(), 32, root_dof=True)
+    mu, e = spring_eigenvalue(fe, np.array([1e-3, 1e5]) * I_REF / L)
+    # Soft clamp: λ⁴ → 3κ (to O(κ)), e → 1; stiff clamp: λ → the clamped root (1e-5
+    # below it at κ = 1e5), e → 0.
+    assert mu[0] * RHOA * L**4 / I_REF == pytest.approx(3e-3, rel=1e-3)
+    assert e[0] == pytest.approx(1.0, abs=1e-3) and e[1] < 1e-4
+    assert (mu[1] * RHOA * L**4 / I_REF) ** 0.25 == pytest.approx(BETA_L_REF[0], rel=3e-5)
+    with pytest.raises(FEMError, match="root rotation dof"):
+        spring_eigenvalue(assemble(uniform_beam(), 8), [1e-12])
+    with pytest.raises(FEMError, match="positive and finite"):
+        spring_eigenvalue(fe, [0.0])
+
+
+def test_release_gain_of_a_rigid_clamp_matches_the_analytic_modes():
+    # Uniform cantilever, sensor at the tip: φ1(L) q1 with the analytic first mode
+    # φ1 = cosh βx - cos βx - σ (sinh βx - sin βx) and the static tip-load shape
+    # s(x) = x²(3L - x)/(2L³) (unit tip deflection), q1 = ∫ rhoA φ1 s dx / ∫ rhoA φ1² dx
+    # by quadrature; the FE spring is made stiff (κ = 1e6: 4e-6 of the way to soft,
+    # e ~ 1e-6).
+    beta = BETA_L_REF[0] / L
+    sig = (np.cosh(BETA_L_REF[0]) + np.cos(BETA_L_REF[0])) / (
+        np.sinh(BETA_L_REF[0]) + np.sin(BETA_L_REF[0]))
+
+    def phi(x):
+        return (np.cosh(beta * x) - np.cos(beta * x)
+                - sig * (np.sinh(beta * x) - np.sin(beta * x)))
+
+    from scipy.integrate import quad
+
+    num = quad(lambda x: phi(x) * x**2 * (3 * L - x) / (2 * L**3), 0, L, epsabs=0,
+               epsrel=1e-13)[0]
+    den = quad(lambda x: phi(x) ** 2, 0, L, epsabs=0, epsrel=1e-13)[0]
+    exact = phi(L) * num / den
+    fe = assemble(uniform_beam(), 32, root_dof=True)
+    g = release_gain(fe, [1e6 * I_REF / L], L)[0]
+    assert g == pytest.approx(exact, rel=1e-5)
+    assert 0.97 < exact < 0.98  # the first mode carries ~97 % of a tip release

@@ -215,6 +215,9 @@ def test_killed_run_resumes_to_the_same_chain(toy_chain, tmp_path):
         run_emcee(log_prob, start(), **{**kw, "seed": 7}, resume=True)
     with pytest.raises(SamplingError, match="parameters"):
         run_emcee(log_prob, start(), **{**kw, "names": ["x", "y", "z"]}, resume=True)
+    # The walkers' positions mean other points in other coordinates.
+    with pytest.raises(SamplingError, match="other coordinates"):
+        run_emcee(log_prob, start(), **kw, space="u with E as log ω1²", resume=True)
 
 
 def test_budget_then_extend_equals_uninterrupted(toy_chain, tmp_path):
