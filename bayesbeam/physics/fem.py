@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -531,12 +532,7 @@ def spring_eigenvalue(fe: FEModel, ratio: np.ndarray) -> tuple[np.ndarray, np.nd
     FEMError
         Without a root rotation dof, or for a ratio that is not positive and finite.
     """
-    if not fe.root_dof:
-        raise FEMError("spring_eigenvalue needs the root rotation dof: assemble(beam, n, "
-                       "root_dof=True)")
-    r = np.atleast_1d(np.asarray(ratio, dtype=float))
-    if not (np.all(np.isfinite(r)) and np.all(r > 0)):
-        raise FEMError(f"the spring-to-E ratio must be positive and finite, got {ratio!r}")
+    r = _spring_ratios(fe, ratio, "spring_eigenvalue")
     mu = np.empty(r.size)
     slope = np.empty(r.size)
     for i, ri in enumerate(r):
@@ -573,8 +569,7 @@ def release_gain(fe: FEModel, ratio: np.ndarray, sensor_x: float) -> np.ndarray:
     FEMError
         As :func:`spring_eigenvalue`.
     """
-    spring_eigenvalue(fe, np.atleast_1d(ratio)[:1])  # the same checks
-    r = np.atleast_1d(np.asarray(ratio, dtype=float))
+    r = _spring_ratios(fe, ratio, "release_gain")
     row = fe.shape(np.array([sensor_x]))[0]
     out = np.empty(r.size)
     for i, ri in enumerate(r):
@@ -583,6 +578,17 @@ def release_gain(fe: FEModel, ratio: np.ndarray, sensor_x: float) -> np.ndarray:
         shape = shape / (fe.tip @ shape)
         out[i] = (row @ phi[:, 0]) * (phi[:, 0] @ fe.M @ shape)
     return out
+
+
+def _spring_ratios(fe: FEModel, ratio: Any, caller: str) -> np.ndarray:
+    """Return ``ratio`` as positive finite k/E values, shape (p,), for a model with θ_0."""
+    if not fe.root_dof:
+        raise FEMError(f"{caller} needs the root rotation dof: assemble(beam, n, "
+                       "root_dof=True)")
+    r = np.atleast_1d(np.asarray(ratio, dtype=float))
+    if not (np.all(np.isfinite(r)) and np.all(r > 0)):
+        raise FEMError(f"the spring-to-E ratio must be positive and finite, got {ratio!r}")
+    return r
 
 
 def _finite_float(name: str, value: object) -> float:
