@@ -549,6 +549,8 @@ class DecayAmplitude:
         Window-centre amplitudes (signal units), possibly empty.
     rate : ndarray, shape (k,)
         Window decay rates in 1/s.
+    others_hz : tuple of float
+        Fitted frequencies (Hz) of the other modes (aliases folded) fitted beside it.
     """
 
     frequency: float
@@ -558,6 +560,7 @@ class DecayAmplitude:
     amplitude0: float
     amplitude: np.ndarray
     rate: np.ndarray
+    others_hz: tuple[float, ...] = ()
 
     @property
     def slope(self) -> float:
@@ -579,6 +582,7 @@ class DecayAmplitude:
             "amplitude0": finite_or_none(self.amplitude0),
             "window_amplitude": [finite_or_none(v) for v in self.amplitude],
             "window_rate": [finite_or_none(v) for v in self.rate],
+            "others_hz": [float(f) for f in self.others_hz],
         }
 
 
@@ -673,6 +677,7 @@ def decay_rate_vs_amplitude(
         frequency=float(fit["p"][0]), excess=c,
         excess_se=c_se, rate0=float(fit["p"][K]), amplitude0=float(amp0),
         amplitude=np.array(amps), rate=np.array(rates),
+        others_hz=tuple(float(f) for f in fit["p"][1:K]),
     )
 
 

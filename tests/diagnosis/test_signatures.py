@@ -124,3 +124,35 @@ def test_amplitude_trends_see_drag_that_the_linear_model_lacks(result_from_sampl
         "bayesbeam.diagnosis.records", fromlist=["describe_signatures"]
     ).describe_signatures(sig))
     assert json.loads(json.dumps(sig.to_json_dict()))["amplitude_trends"]["data"]["n_windows"]
+
+
+def test_decay_fit_leaves_out_the_modes_above_the_sensor_band(result_from_samples):
+    # The forward model removes modes above the sensor band (physics.forward), and a
+    # low-passed record holds none: the decay-vs-amplitude fit must not add sinusoids at
+    # their aliases. Sample so that mode 4 (above the band) aliases to 18 Hz, inside the
+    # fit's low-pass of mode 1 (cut 2.5 f1 = 25.7 Hz) and > 30 % from f1.
+    from bayesbeam.diagnosis.signatures import model_modes
+
+    w1 = 2 * np.pi * 10.28
+    gamma = 2 * BEAM.rhoA * w1 * 0.003
+    probe = Problem(_tap_trial("viscous", {"gamma": gamma})[0], "viscous", n_elements=8,
+                    initial="impulse")
+    f_model, _ = model_modes(probe, np.array([E, gamma, 1e-3, 1.0]))
+    fs = f_model[3] - 18.0  # Hz: |f4 - fs| = 18 Hz
+    t = np.arange(int(2.0 * fs)) / fs
+    y = simulate_signal(BEAM, "viscous", {"gamma": gamma, "p0": 1e-3}, t, n_elements=8,
+                        initial="impulse")
+    sd = 0.01 * np.sqrt(np.mean(y**2))
+    rng = np.random.default_rng(9)
+    trial = Trial(times=t, values=y + sd * rng.standard_normal(t.size),
+                  quantity="displacement", beam=BEAM, name="alias")
+    assert f_model[2] > trial.sensor_band > 2.5 * f_model[0]  # modes 3+ out, mode 2 in
+    pb = Problem(trial, "viscous", n_elements=8, initial="impulse")
+    u0, u = _laplace_draws(pb, np.array([E, gamma, 1e-3, sd]), np.random.default_rng(10))
+    sig = compute_signatures(pb, result_from_samples(pb, u, map_u=u0), seed=1)
+    # Mode 2 (64 Hz) lies above the fit's cut-off, so nothing else is fitted beside f1.
+    for dec in (sig.decay_data, sig.decay_model):
+        assert dec is not None
+        assert dec.others_hz == ()
+        assert dec.frequency == pytest.approx(f_model[0], rel=1e-3)
+        assert abs(dec.excess) < 4 * dec.excess_se  # a linear record: no excess
