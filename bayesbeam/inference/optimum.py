@@ -56,6 +56,16 @@ ON_BOUND = 1e-6
 ESCAPE_POINTS = 16
 ESCAPE_GAIN = 1.0
 
+#: :func:`best_map` ends by alternating an L-BFGS-B search and a Newton polish from the
+#: polished best until a round gains under :data:`REFINE_GAIN` nats, at most
+#: :data:`REFINE_ROUNDS` rounds. The polish can stop where its quadratic model fails
+#: (a step that gains nothing at every shift) while a fresh L-BFGS-B pass from there still
+#: climbs: on Al 60 cm #3 (6620 samples), the point-mass screen of round 2 stopped at
+#: +9516.9 nats, behind the tip mass it nests (+9566.1), and one more pass reached
+#: +9581.8 in 3 s (the point mass then ranks first, ahead of the EI gradient's +9570.9).
+REFINE_ROUNDS = 5
+REFINE_GAIN = 0.5
+
 #: Levenberg-Marquardt shifts of :func:`newton_polish`, tried in turn until a step gains
 #: (the Hessian in conditional-sd units has unit diagonal, so 1 is its own scale).
 LM_SHIFTS = (0.0, 1e-3, 1e-2, 1e-1, 1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6)
@@ -222,6 +232,9 @@ def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300,
              polished: int = POLISHED) -> tuple[np.ndarray | None, float]:
     """:func:`local_map` from every row of ``U``; the best ``polished``, Newton-polished.
 
+    The best is then refined by alternating :func:`local_map` and :func:`newton_polish`
+    until a round gains under :data:`REFINE_GAIN` nats (:data:`REFINE_ROUNDS` at most).
+
     Parameters
     ----------
     problem : Problem
@@ -266,7 +279,13 @@ def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300,
             u, v = newton_polish(problem.log_prob, u2, v2, bounds, iters=FIRST_STEPS)
         if v > best_v:
             best_u, best_v = u, v
-    return newton_polish(problem.log_prob, best_u, best_v, bounds)
+    u, v = newton_polish(problem.log_prob, best_u, best_v, bounds)
+    for _ in range(REFINE_ROUNDS):
+        u2, v2 = local_map(problem, u, maxiter=maxiter)
+        if not v2 > v + REFINE_GAIN:
+            return (u2, v2) if v2 > v else (u, v)
+        u, v = newton_polish(problem.log_prob, u2, v2, bounds)
+    return u, v
 
 
 def escape_bounds(problem: Any, u: np.ndarray, v: float, *, maxiter: int = 300,
