@@ -20,8 +20,13 @@ import numpy as np
 from scipy.special import logsumexp
 
 from bayesbeam.inference.parallel import ParallelLogProb
-from bayesbeam.inference.problem import BETA1, Problem
-from bayesbeam.physics.fem import FEModel, release_gain, spring_eigenvalue
+from bayesbeam.inference.problem import Problem
+from bayesbeam.physics.fem import (
+    FEModel,
+    first_mode_integrals,
+    release_gain,
+    spring_eigenvalue,
+)
 from bayesbeam.stats.convergence import autocorr_time, ess_rhat
 from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform, Uniform
 from bayesbeam.stats.sampling import Chain, named_moves, run_emcee
@@ -74,24 +79,35 @@ class SamplerCoordinates:
 
         v_tot = log Σ_j exp(u_j + c_j),     w_j = u_j - u_1  (j >= 2),
 
-    with ``exp(u_j + c_j)`` the law's first-mode damping ratio at the prior's median
-    modulus (physics.md §2: ``ζ = gamma/(2 rhoA ω1)``, ``c_d ω1/(2E)``,
-    ``eta ω1/(2 E I)`` with eta as in :mod:`bayesbeam.inference.problem`). Both the total and the
-    log ratios are straight in these coordinates; τ drops to 20–30 steps. The map is
-    a bijection with unit Jacobian (``det ∂(v_tot, w)/∂u = Σ_j p_j = 1``, ``p_j`` the
-    shares), so the density is unchanged: ``log_prob_v(v) = log_prob(u(v))``.
+    with ``exp(u_j + c_j)`` the law's first-mode damping ratio: ``c_j`` is the log of
+    ζ1 per unit of the law's parameter, from the first mode of the beam's own FE model
+    (:func:`~bayesbeam.physics.fem.first_mode_integrals`: ``g/(2ω1)`` for gamma,
+    ``κ/(2ω1)`` for c_d, ``κ/(2 I ω1)`` for eta, the hysteresis law's Kelvin–Voigt
+    equivalent of physics.md §2), at the prior's median E and the beam as declared.
+    Both the total and the log ratios are straight in these coordinates; τ drops to
+    20–30 steps. The map is a bijection with unit Jacobian
+    (``det ∂(v_tot, w)/∂u = Σ_j p_j = 1``, ``p_j`` the shares), so the density is
+    unchanged: ``log_prob_v(v) = log_prob(u(v))``.
+
+    The scales must be exact *relative to one another*, not only in size: at fixed
+    ``v_tot`` a move of the split changes the true ζ1 by ``(ε_1 - ε_2) Δp`` if the laws'
+    scales are off by ``ε_j``, and ζ1 is what the data fix best. The uniform-beam
+    formulas (``gamma/(2 rhoA ω1)``) are 5-10 % off on the shipped beam 2 (a lighter
+    cut-out segment and a tip mass), which tilted the split against the total by
+    hundreds of nats per unit of log ratio. ζ1 of every law scales as ``E^(-1/2)`` at
+    fixed structure, so fixed scales keep the split exact at any E.
 
     Laws whose prior is not on ``log x`` (a user's Uniform or Normal override), and
     models with fewer than two laws, are left in ``u``.
 
     Where the model samples E and a clamp spring, those two move in the coordinates of
-    :class:`ClampCoordinates` (log ω1² and log k), and the laws' scales ``c_j`` follow
-    each point's own E and ω1 instead of the prior median's: along that map's ridge E
-    changes by tens of % at fixed ω1, and a Kelvin–Voigt ζ1 = c_d ω1/(2E) at fixed c_d
-    with it, which would bend the total-damping ridge again (``c_j`` shifts by
-    ``a_j Δlog ω1 + b_j Δlog E``, with ``(a, b)`` = (-1, 0) for gamma and (1, -1) for
-    c_d and eta). The map is then block-triangular (the laws' part has unit Jacobian
-    at fixed E and k), so its Jacobian is the clamp map's.
+    :class:`ClampCoordinates` (log ω1² and log k), and the laws' scales follow each
+    point's own ω1 and mode shape (its ``r = k/E``; tabulated there) instead of the
+    prior median's: along that map's ridge E changes by tens of % at fixed ω1, and the
+    spring takes a share of the strain energy that the Kelvin–Voigt law does not damp,
+    which would bend the total-damping ridge again. The map is then block-triangular
+    (the laws' part has unit Jacobian at fixed E and k), so its Jacobian is the clamp
+    map's.
 
     Parameters
     ----------
@@ -99,36 +115,46 @@ class SamplerCoordinates:
     """
 
     _LOG = (LogUniform, LogNormal, HalfNormal)
+    #: Each law's first-mode integral (0: ``g``, 1: ``κ``) and its log factor in ζ1 per
+    #: unit parameter beside it (``ζ1 = x · factor · integral / ω1``).
+    _LAWS = {"gamma": (0, np.log(0.5)), "c_d": (1, np.log(0.5)), "eta": (1, None)}
 
     def __init__(self, problem: Problem) -> None:
         beam = problem.trial.beam
         pri = problem.priors
-        pE = pri["E"]
-        E_c = float(pE.from_u(pE.ppf_u(0.5)))  # prior median: fixed, so resume-safe
-        w1 = BETA1**2 * np.sqrt(E_c * beam.I / (beam.rhoA * beam.length**4))
-        scale = {
-            "gamma": 1.0 / (2 * beam.rhoA * w1),
-            "c_d": w1 / (2 * E_c),
-            "eta": w1 / (2 * E_c * beam.I),
-        }
-        idx = [problem.names.index(n) for n in scale
+        idx = [problem.names.index(n) for n in self._LAWS
                if n in problem.names and isinstance(pri[n], self._LOG)]
         self.group = np.array(idx if len(idx) >= 2 else [], dtype=int)
-        self.c = np.log([scale[problem.names[j]] for j in self.group])
         self.law_names = tuple(problem.names[j] for j in self.group)
+        self.kinds = np.array([self._LAWS[n][0] for n in self.law_names], dtype=int)
+        self.offset = np.array([np.log(0.5 / beam.I) if self._LAWS[n][1] is None
+                                else self._LAWS[n][1] for n in self.law_names])
         self.clamp = ClampCoordinates.for_problem(problem)
-        # Exponents of ω1, E and the beam's share of mode 1's strain energy, 1 - e, in
-        # each law's ζ1 per unit parameter (physics.md §2; the Kelvin–Voigt and
-        # hysteresis laws damp the beam's bending, not the clamp spring:
-        # ζ1 = c_d ω1 (1 - e)/(2E) exactly, with e = k φ1'(0)²/ω1²).
-        powers = {"gamma": (-1.0, 0.0, 0.0), "c_d": (1.0, -1.0, 1.0), "eta": (1.0, -1.0, 1.0)}
-        self.powers = np.array([powers[problem.names[j]] for j in self.group]).reshape(-1, 3)
-        self.ref = (float(np.log(w1)), float(np.log(E_c)))
         self.coupled = self.clamp
+        self.c = np.zeros(0)
+        if self.group.size:
+            self.c = self.offset + self._reference_integrals(problem)
+
+    def _reference_integrals(self, problem: Problem) -> np.ndarray:
+        """``log(integral/ω1)`` per law at the prior medians and the beam as declared."""
+        pri = problem.priors
+
+        def median(name: str) -> float:
+            return float(pri[name].from_u(pri[name].ppf_u(0.5)))  # fixed: resume-safe
+
+        E_c = median("E")
+        fe = problem.forward.fe
+        ratio = None
+        if fe.root_dof:
+            k = (median("root_spring") if "root_spring" in problem.names
+                 else problem.trial.beam.root_spring)
+            ratio = [k / E_c]
+        mu, g, kappa = first_mode_integrals(fe, ratio)
+        integral = np.array([g[0], kappa[0]])[self.kinds]
+        return np.log(integral) - 0.5 * np.log(E_c * mu[0])
 
     @classmethod
-    def on_columns(cls, group: Any, c: Any, *, powers: Any = None,
-                   ref: tuple[float, float] = (0.0, 0.0),
+    def on_columns(cls, group: Any, c: Any, *, offset: Any = None, kinds: Any = None,
                    coupled: ClampCoordinates | None = None) -> SamplerCoordinates:
         """Make the laws' map on other columns (e.g. one trial's laws inside a joint fit).
 
@@ -140,12 +166,11 @@ class SamplerCoordinates:
         group : sequence of int
             Columns of the laws (two or more).
         c : sequence of float
-            Their log first-mode damping ratio per unit parameter (as ``self.c``).
-        powers : array_like, shape (n_laws, 3), optional
-            Exponents of ω1, E and 1 - e in each ``c_j`` (as ``self.powers``); with
-            ``coupled``.
-        ref : (float, float)
-            log ω1 and log E at which ``c`` holds (as ``self.ref``).
+            Their log first-mode damping ratio per unit parameter at the reference
+            (as ``self.c``), used without ``coupled``.
+        offset, kinds : array_like, optional
+            Each law's log factor and first-mode integral (as ``self.offset`` and
+            ``self.kinds``); needed with ``coupled``.
         coupled : ClampCoordinates, optional
             The clamp map of the E and spring columns the scales follow.
 
@@ -157,28 +182,28 @@ class SamplerCoordinates:
         out.group = np.asarray(group, dtype=int)
         out.c = np.asarray(c, dtype=float)
         out.clamp = None
-        out.powers = (np.zeros((out.group.size, 3)) if powers is None
-                      else np.asarray(powers, dtype=float))
-        out.ref, out.coupled = ref, coupled
+        out.coupled = coupled
         out.law_names = tuple(f"column {j}" for j in out.group)
         if out.group.size == 1 or out.group.shape != out.c.shape:
             raise ValueError("on_columns needs two or more columns and one scale per column")
+        if coupled is not None and (offset is None or kinds is None):
+            raise ValueError("on_columns with a clamp map needs each law's offset and kind")
+        out.offset = out.c if offset is None else np.asarray(offset, dtype=float)
+        out.kinds = (np.zeros(out.group.size, dtype=int) if kinds is None
+                     else np.asarray(kinds, dtype=int))
         return out
 
     def _scales(self, U: np.ndarray, V: np.ndarray) -> np.ndarray:
         """Return the laws' ``c_j``, shape (..., n_laws) or (n_laws,).
 
-        Fixed, or, with a clamp map, at each point's log E (``U``), log ω1² (``V``) and
-        the spring's share e of mode 1's strain energy.
+        Fixed, or, with a clamp map, at each point's log ω1² (``V``) and the first
+        mode's integrals at its ``r = k/E`` (``U``).
         """
         cl = self.coupled
         if cl is None:
             return self.c
-        (a, b, q), (lw, lE) = self.powers.T, self.ref
-        uE = U[..., cl.iE]
-        _, e = cl.h(U[..., cl.ik] - uE)
-        return (self.c + a * (0.5 * V[..., cl.iE] - lw)[..., None]
-                + b * (uE - lE)[..., None] + q * np.log1p(-e)[..., None])
+        integrals = cl.mode_integrals(U[..., cl.ik] - U[..., cl.iE])[..., self.kinds]
+        return self.offset + integrals - 0.5 * V[..., cl.iE][..., None]
 
     def laws_to_v(self, U: np.ndarray, V: np.ndarray) -> None:
         """Write the laws' sampler coordinates into ``V`` (in place) from ``U``.
@@ -241,8 +266,10 @@ class SamplerCoordinates:
         """One line for the settings record."""
         parts = []
         if self.group.size:
+            # "FE first mode": the scales of fem.first_mode_integrals (a checkpoint made
+            # with the uniform-beam scales of earlier versions is refused, not resumed).
             parts.append("(" + ", ".join(self.law_names)
-                         + ") as log total first-mode damping and log ratios")
+                         + ") as log total first-mode damping (FE first mode) and log ratios")
         if self.clamp is not None:
             parts.append(self.clamp.describe())
         return "u with " + "; ".join(parts) if parts else "u"
@@ -326,6 +353,14 @@ class ClampCoordinates:
         s = np.log(r)
         self._s0, self._ds = float(s[0]), float(s[1] - s[0])
         self._y, self._m = np.log(mu), e
+        # The first mode's viscous and Kelvin–Voigt integrals along the ridge, on which
+        # the damping laws' scales depend (SamplerCoordinates; both change with the mode
+        # shape as the clamp softens): log values and their slopes in s.
+        key_i = (*key, "integrals")
+        if key_i not in table:
+            table[key_i] = first_mode_integrals(fe, r)[1:]
+        self._mi = np.log(np.stack(table[key_i], axis=1))  # (nodes, 2): log g, log κ
+        self._mim = np.gradient(self._mi, self._ds, axis=0)
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.iw: int | None = None
         if release is not None:
@@ -400,6 +435,15 @@ class ClampCoordinates:
         val = np.where(above, y[-1] + m[-1] * d * (z - last), val)
         slope = np.where(below, m[0], np.where(above, m[-1], slope))
         return val, slope
+
+    def mode_integrals(self, s: np.ndarray) -> np.ndarray:
+        """Log of the first mode's ``g`` and ``κ`` at ``s = log(k/E)``, shape (..., 2).
+
+        :func:`~bayesbeam.physics.fem.first_mode_integrals` on the table, cubic Hermite
+        with finite-difference slopes.
+        """
+        return np.stack([self._hermite(self._mi[:, j], self._mim[:, j], s)[0]
+                         for j in range(2)], axis=-1)
 
     def _gain(self, s: np.ndarray) -> np.ndarray:
         """Return the log release gain relative to the stiff clamp's, shape of ``s``."""

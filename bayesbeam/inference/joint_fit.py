@@ -252,8 +252,8 @@ class _Coordinates:
                      else f"{pb.names[j]}[{label}]" for j in sc.group]
             if sc.group.size and all(n in jp.names for n in names):
                 self.laws.append(SamplerCoordinates.on_columns(
-                    [jp.names.index(n) for n in names], sc.c, powers=sc.powers,
-                    ref=sc.ref, coupled=clamp_of.get(label)))
+                    [jp.names.index(n) for n in names], sc.c, offset=sc.offset,
+                    kinds=sc.kinds, coupled=clamp_of.get(label)))
 
     @property
     def identity(self) -> bool:
@@ -267,7 +267,7 @@ class _Coordinates:
             parts.append("each pooled parameter's z as centred log values")
         if self.laws:
             parts.append(f"{len(self.laws)} trial(s)' damping laws as log total first-mode "
-                         "damping and log ratios")
+                         "damping (FE first mode) and log ratios")
         if self.clamps:
             parts.append(f"{len(self.clamps)} E and clamp spring pair(s) as log first-mode "
                          "ω² and log root_spring")

@@ -39,8 +39,8 @@ import scipy.linalg as sla
 
 from bayesbeam.physics.beam import Beam
 
-__all__ = ["FEMError", "FEModel", "assemble", "mesh_nodes", "release_gain", "spring_eigenvalue",
-           "static_tip_shape"]
+__all__ = ["FEMError", "FEModel", "assemble", "first_mode_integrals", "mesh_nodes",
+           "release_gain", "spring_eigenvalue", "static_tip_shape"]
 
 # Gauss–Legendre rule on [0, 1]: 5 points integrate polynomials up to degree 9
 # exactly; the integrands here reach degree 7 (linear factor x cubic x cubic) in M
@@ -536,10 +536,70 @@ def spring_eigenvalue(fe: FEModel, ratio: np.ndarray) -> tuple[np.ndarray, np.nd
     mu = np.empty(r.size)
     slope = np.empty(r.size)
     for i, ri in enumerate(r):
-        w, phi = sla.eigh(fe.K + ri * fe.K_root, fe.M, subset_by_index=[0, 0])
-        mu[i] = w[0]
-        slope[i] = phi[:, 0] @ fe.K_root @ phi[:, 0]  # eigh: φᵀ M φ = 1
+        mu[i], phi = _first_mode(fe, ri)
+        slope[i] = phi @ fe.K_root @ phi  # eigh: φᵀ M φ = 1
     return mu, r * slope / mu
+
+
+def first_mode_integrals(
+    fe: FEModel, ratio: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First eigenvalue per unit E and the first mode's viscous and Kelvin–Voigt integrals.
+
+    With φ1 the mass-normalised first mode of ``(K + r K_root, M)`` (stiffness
+    ``E K + k K_root``, ``r = k/E``), the first mode's damping ratio under the damping
+    matrix ``gamma G + c_d KV`` is, to first order in the damping (the diagonal term of
+    the modal damping matrix; physics.md §2),
+
+        ζ1 = (gamma g + c_d κ) / (2 ω1),   g = φ1ᵀ G φ1,   κ = φ1ᵀ KV φ1,   ω1² = E μ,
+
+    exact for any spanwise E, I, rhoA and attached masses: ``g = 1/rhoA`` only for a
+    uniform beam without masses (a mass, or a lighter segment, takes part of the modal
+    mass and changes the viscous share), and ``κ = μ (1 - e)`` only for a uniform E
+    (:func:`spring_eigenvalue`'s elasticity e: the spring's share of the strain energy,
+    which the Kelvin–Voigt law does not damp).
+
+    Parameters
+    ----------
+    fe : FEModel
+    ratio : array_like, shape (p,), optional
+        ``r = k/E`` in m³/rad, positive, for a model with the root rotation dof; None
+        for one without (a rigid clamp: ``K`` alone).
+
+    Returns
+    -------
+    mu : ndarray, shape (p,) (or (1,) for ``ratio=None``)
+        ``ω1²/E`` in rad²/(s² Pa).
+    g : ndarray, same shape
+        ``φ1ᵀ G φ1`` in m/kg.
+    kappa : ndarray, same shape
+        ``φ1ᵀ KV φ1`` in rad²/(s² Pa) (``KV`` has the units of ``K`` per unit E).
+
+    Raises
+    ------
+    FEMError
+        For ``ratio=None`` with a root rotation dof (the beam would be free to rotate),
+        or as :func:`spring_eigenvalue`.
+    """
+    if ratio is None:
+        if fe.root_dof:
+            raise FEMError("first_mode_integrals needs the spring-to-E ratio of a model with "
+                           "the root rotation dof (ratio=None is the rigid clamp)")
+        r = np.array([np.nan])
+    else:
+        r = _spring_ratios(fe, ratio, "first_mode_integrals")
+    out = np.empty((3, r.size))
+    for i, ri in enumerate(r):
+        mu, phi = _first_mode(fe, None if ratio is None else ri)
+        out[:, i] = mu, phi @ fe.G @ phi, phi @ fe.KV @ phi
+    return out[0], out[1], out[2]
+
+
+def _first_mode(fe: FEModel, ratio: float | None) -> tuple[float, np.ndarray]:
+    """Lowest eigenpair of ``(K + ratio K_root, M)`` (``K`` alone for None), φᵀ M φ = 1."""
+    K = fe.K if ratio is None else fe.K + ratio * fe.K_root
+    w, phi = sla.eigh(K, fe.M, subset_by_index=[0, 0])
+    return float(w[0]), phi[:, 0]
 
 
 def release_gain(fe: FEModel, ratio: np.ndarray, sensor_x: float) -> np.ndarray:
@@ -573,10 +633,10 @@ def release_gain(fe: FEModel, ratio: np.ndarray, sensor_x: float) -> np.ndarray:
     row = fe.shape(np.array([sensor_x]))[0]
     out = np.empty(r.size)
     for i, ri in enumerate(r):
-        _, phi = sla.eigh(fe.K + ri * fe.K_root, fe.M, subset_by_index=[0, 0])
+        _, phi = _first_mode(fe, ri)
         shape = static_tip_shape(fe, 1.0, ri)
         shape = shape / (fe.tip @ shape)
-        out[i] = (row @ phi[:, 0]) * (phi[:, 0] @ fe.M @ shape)
+        out[i] = (row @ phi) * (phi @ fe.M @ shape)
     return out
 
 

@@ -15,6 +15,7 @@ from bayesbeam.physics.fem import (
     FEMError,
     FEModel,
     assemble,
+    first_mode_integrals,
     mesh_nodes,
     release_gain,
     spring_eigenvalue,
@@ -685,3 +686,80 @@ def test_release_gain_of_a_rigid_clamp_matches_the_analytic_modes():
     g = release_gain(fe, [1e6 * I_REF / L], L)[0]
     assert g == pytest.approx(exact, rel=1e-5)
     assert 0.97 < exact < 0.98  # the first mode carries ~97 % of a tip release
+
+
+@pytest.mark.parametrize("mass_ratio", [0.1, 1.0])
+def test_first_mode_viscous_integral_of_a_tip_mass_matches_the_analytic_mode(mass_ratio):
+    # Uniform cantilever with a tip mass m = μ rhoA L (no rotary inertia): the first mode
+    # is φ = cosh βx - cos βx - σ (sinh βx - sin βx), σ from the moment-free tip and β
+    # from the tip-mass characteristic equation (physics.md §3). The mass takes part of
+    # the modal mass, so g = ∫φ² / (rhoA ∫φ² + m φ(L)²) < 1/rhoA; quadrature, no FE.
+    from scipy.integrate import quad
+
+    m = mass_ratio * RHOA * L
+    lam = first_root_tip_mass(mass_ratio)
+    beta = lam / L
+    sig = (np.cosh(lam) + np.cos(lam)) / (np.sinh(lam) + np.sin(lam))
+
+    def phi(x):
+        return (np.cosh(beta * x) - np.cos(beta * x)
+                - sig * (np.sinh(beta * x) - np.sin(beta * x)))
+
+    p2 = quad(lambda x: phi(x) ** 2, 0, L, epsabs=0, epsrel=1e-13)[0]
+    exact = p2 / (RHOA * p2 + m * phi(L) ** 2)
+    fe = assemble(uniform_beam(tip_mass=m), 32)
+    mu, g, kappa = first_mode_integrals(fe)
+    # 32 elements: eigenvalue error ~1e-8 (REF_ERR_32, squared frequency), the mode's
+    # integrals converge at the same order; 1e-7 leaves a margin.
+    assert g[0] == pytest.approx(exact, rel=1e-7)
+    assert g[0] < 1 / RHOA
+    assert mu[0] == pytest.approx(beta**4 * I_REF / RHOA, rel=1e-7)
+    # Uniform E: KV = K per unit E, so the Kelvin-Voigt integral is the eigenvalue.
+    assert kappa[0] == pytest.approx(mu[0], rel=1e-10)
+
+
+def test_first_mode_integrals_give_the_damped_first_mode():
+    # A beam far from uniform (stiffer, lighter segment; a point mass; a root spring):
+    # ζ1 of the damped state matrix (first-order system, eigenvalues) against
+    # (gamma g + c_d κ)/(2 ω1) for each law alone and together. Light damping (ζ1 ~ 1e-4)
+    # so that the first-order formula's own error, O(ζ1 × coupling to mode 2), is
+    # below 1e-6 relative.
+    beam = uniform_beam(segments=(Segment(0.08, 0.16, E=1.6, rhoA=0.5),),
+                        masses=(PointMass(0.2, 0.004),))
+    fe = assemble(beam, 16, root_dof=True)
+    k = 60.0  # N m/rad: κ = k L/(E I) = 7.5, a soft clamp
+    mu, g, kappa = first_mode_integrals(fe, [k / E])
+    w1 = math.sqrt(E * mu[0])
+    n = fe.n_dof
+    for gamma, c_d in [(2e-3, 0.0), (0.0, 2e3), (1e-3, 1e3)]:
+        D = gamma * fe.G + c_d * fe.KV
+        K = E * fe.K + k * fe.K_root
+        A = np.block([[np.zeros((n, n)), np.eye(n)],
+                      [-sl.solve(fe.M, K), -sl.solve(fe.M, D)]])
+        lam = sl.eigvals(A)
+        first = lam[np.argmin(np.abs(lam - 1j * w1))]
+        zeta = -first.real / abs(first)
+        assert zeta == pytest.approx((gamma * g[0] + c_d * kappa[0]) / (2 * w1), rel=1e-6)
+    # ...where the uniform-beam formulas are off: gamma/(2 rhoA ω1) by the segment and
+    # the mass, c_d ω1/(2E) by the spring's share of the strain energy and the segment.
+    assert abs(g[0] * RHOA - 1) > 0.05
+    assert abs(kappa[0] / mu[0] - 1) > 0.05
+
+
+def test_first_mode_integrals_with_a_spring_and_their_errors():
+    fe = assemble(uniform_beam(), 16, root_dof=True)
+    r = np.array([0.1, 10.0, 1e3]) * I_REF / L
+    mu, g, kappa = first_mode_integrals(fe, r)
+    mu2, e = spring_eigenvalue(fe, r)
+    np.testing.assert_array_equal(mu, mu2)
+    # Uniform E: the Kelvin-Voigt integral is the beam's share 1 - e of the strain
+    # energy (e by Hellmann-Feynman, spring_eigenvalue). Tolerance on the share: the
+    # soft clamp's eigenproblem is ill-conditioned (μ to ~1e-8 relative at κ = 0.1,
+    # test_spring_eigenvalue_matches_the_characteristic_equation's rounding).
+    np.testing.assert_allclose(kappa / mu, 1 - e, rtol=0, atol=1e-7)
+    # No masses: G = M / rhoA, so g = 1/rhoA whatever the spring.
+    np.testing.assert_allclose(g * RHOA, 1.0, rtol=1e-12)
+    with pytest.raises(FEMError, match="ratio=None"):
+        first_mode_integrals(fe)
+    with pytest.raises(FEMError, match="positive and finite"):
+        first_mode_integrals(fe, [-1.0])
