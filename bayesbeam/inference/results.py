@@ -42,6 +42,7 @@ import dataclasses
 import datetime as _dt
 import io
 import json
+import logging
 import platform
 import sys
 from collections.abc import Mapping
@@ -141,6 +142,34 @@ def _named_arrays(value: Any, default_name: str) -> dict[str, np.ndarray]:
         return {}
     return {default_name: np.asarray(value, dtype=float)}
 
+
+
+class _CornerNotes(logging.Filter):
+    """Count corner's "Too few points to create valid contours" warnings, not print them.
+
+    corner reports a 2-D panel whose samples are too concentrated for its density
+    levels through the root logger, once per panel; the figure says so instead (a
+    note on it), so that a fit's output is not a screen of logging lines.
+    """
+
+    MESSAGE = "Too few points to create valid contours"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:  # noqa: D102
+        if record.getMessage() == self.MESSAGE:
+            self.count += 1
+            return False
+        return True
+
+    def __enter__(self) -> _CornerNotes:
+        logging.getLogger().addFilter(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        logging.getLogger().removeFilter(self)
 
 @dataclass(frozen=True, eq=False)
 class FitResult:
@@ -884,15 +913,26 @@ class FitResult:
             mid, lo, hi = fmt_interval(q[1], q[0], q[2])
             ax.set_title(f"{names[0]} = {mid} [{lo}, {hi}] (90 %)", fontsize=9)
         else:
-            corner.corner(
-                flat,
-                labels=names,
-                quantiles=list(_QUANTILES.values()),
-                show_titles=True,
-                title_fmt=".3g",
-                truths=None if truths is None else list(truths),
-                fig=fig,
-            )
+            # A positive parameter spread over more than a decade (a ridge the data do
+            # not close: E and a clamp spring, a damping split) on a log axis: on a
+            # linear one its samples crowd into one bin and corner draws no contour.
+            lo, hi = np.quantile(flat, [0.05, 0.95], axis=0)
+            wide = (lo > 0) & (hi > 10 * lo)
+            with _CornerNotes() as notes:
+                corner.corner(
+                    flat,
+                    labels=[f"{n} (log axis)" if w else n for n, w in zip(names, wide,
+                                                                          strict=True)],
+                    quantiles=list(_QUANTILES.values()),
+                    show_titles=True,
+                    title_fmt=".3g",
+                    truths=None if truths is None else list(truths),
+                    axes_scale=["log" if w else "linear" for w in wide],
+                    fig=fig,
+                )
+            if notes.count:
+                fig.text(0.99, 0.01, f"{notes.count} panel(s) without contours: samples too "
+                         "concentrated for density levels", ha="right", fontsize=7)
         fig.suptitle(f"{self.model}: posterior ({flat.shape[0]} samples)")
         path = Path(path)
         with atomic_path(path) as tmp:

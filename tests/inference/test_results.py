@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import FrozenInstanceError
 
@@ -240,3 +241,43 @@ def test_plot_corner_of_named_parameters(result, tmp_path):
     with pytest.raises(ValueError, match="no parameter"):
         result.plot_corner(tmp_path / "bad.png", names=[])
     assert not (tmp_path / "bad.png").exists()
+
+
+def test_plot_corner_logs_wide_parameters_and_keeps_corner_quiet(tmp_path, caplog,
+                                                                 monkeypatch):
+    # E spread over ~4 decades (a ridge the data leave open) goes on a log axis.
+    import corner
+
+    from bayesbeam.inference.results import _CornerNotes
+
+    rng = np.random.default_rng(5)
+    u = MU_U + np.array([2.0, 0.2, 0.01]) * rng.standard_normal((NSTEPS, NWALKERS, 3))
+    res = FitResult(model="viscous", chain=make_chain(samples=u), priors=PRIORS,
+                    map_u=MU_U, settings={"nwalkers": NWALKERS},
+                    provenance=make_provenance({"trial": "synthetic"}))
+    seen = {}
+    real = corner.corner
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(corner, "corner", spy)
+    with caplog.at_level("WARNING"):
+        path = res.plot_corner(tmp_path / "wide.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert seen["axes_scale"] == ["log", "linear", "linear"]
+    assert seen["labels"][0] == "E (log axis)"
+    assert not [r for r in caplog.records if "contours" in r.getMessage()]
+    # Where corner still finds too few points for contours (two such parameters on
+    # linear axes) it says so on the root logger, once per panel: held and counted
+    # inside plot_corner (a note on the figure), seen again outside it.
+    wide = np.exp(u.reshape(-1, 3)[:, :2] * [1.0, 10.0])
+    with caplog.at_level("WARNING"), _CornerNotes() as notes:
+        real(wide)
+    assert notes.count > 0
+    assert not [r for r in caplog.records if "contours" in r.getMessage()]
+    assert not logging.getLogger().filters
+    with caplog.at_level("WARNING"):
+        real(wide)
+    assert len([r for r in caplog.records if "contours" in r.getMessage()]) == notes.count
