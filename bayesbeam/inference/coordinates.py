@@ -188,9 +188,9 @@ class SamplerCoordinates:
             raise ValueError("on_columns needs two or more columns and one scale per column")
         if coupled is not None and (offset is None or kinds is None):
             raise ValueError("on_columns with a clamp map needs each law's offset and kind")
-        out.offset = out.c if offset is None else np.asarray(offset, dtype=float)
-        out.kinds = (np.zeros(out.group.size, dtype=int) if kinds is None
-                     else np.asarray(kinds, dtype=int))
+        # offset and kinds are read only with a clamp map (_scales)
+        out.offset = None if offset is None else np.asarray(offset, dtype=float)
+        out.kinds = None if kinds is None else np.asarray(kinds, dtype=int)
         return out
 
     def _scales(self, U: np.ndarray, V: np.ndarray) -> np.ndarray:

@@ -143,7 +143,6 @@ def _named_arrays(value: Any, default_name: str) -> dict[str, np.ndarray]:
     return {default_name: np.asarray(value, dtype=float)}
 
 
-
 class _CornerNotes(logging.Filter):
     """Count corner's "Too few points to create valid contours" warnings, not print them.
 
@@ -170,6 +169,7 @@ class _CornerNotes(logging.Filter):
 
     def __exit__(self, *exc: object) -> None:
         logging.getLogger().removeFilter(self)
+
 
 @dataclass(frozen=True, eq=False)
 class FitResult:
