@@ -419,7 +419,7 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
         chain = sample_in_coordinates(
-            pb.log_prob, SamplerCoordinates(pb), u0, seed=seed, helpers=helpers,
+            pb.log_prob, SamplerCoordinates(pb, at=u_map), u0, seed=seed, helpers=helpers,
             max_steps=int(settings["max_steps"]), min_steps=int(settings["min_steps"]),
             target_ess=float(settings["target_ess"]), names=pb.names, progress=False,
             # As in fit(): a discarded first run returns stranded walkers.

@@ -97,6 +97,17 @@ class SamplerCoordinates:
     hundreds of nats per unit of log ratio. ζ1 of every law scales as ``E^(-1/2)`` at
     fixed structure, so fixed scales keep the split exact at any E.
 
+    The structure sampled beside the laws moves the scales too, though less: a point
+    mass lowers the viscous scale ``g/ω1`` by its share of the modal mass and the
+    Kelvin–Voigt scale ``κ/ω1 = ω1/E`` by the same factor to first order (Rayleigh),
+    so only the second order tilts the split (10 % of the beam's mass at 0.85 L: a
+    unit move of the split changes ζ1 by 1.2e-4); a stiffness gradient reshapes the
+    curvature that ``KV`` weighs (gradient 0.9: 8e-3). Their posteriors are narrow, so
+    ``at`` (the MAP, where the walkers start) takes the scales from the first mode of
+    the structure there (:meth:`~bayesbeam.physics.forward.Forward.first_mode`:
+    masses, gradient, clamp) instead of the beam as declared, exact at that point; it
+    is a fixed point, so the map stays a bijection with unit Jacobian.
+
     Laws whose prior is not on ``log x`` (a user's Uniform or Normal override), and
     models with fewer than two laws, are left in ``u``.
 
@@ -107,11 +118,16 @@ class SamplerCoordinates:
     spring takes a share of the strain energy that the Kelvin–Voigt law does not damp,
     which would bend the total-damping ridge again. The map is then block-triangular
     (the laws' part has unit Jacobian at fixed E and k), so its Jacobian is the clamp
-    map's.
+    map's. With ``at``, the tables (of the beam as declared) are corrected by the
+    constant log ratio of the exact integrals at ``at`` to the table's at its ``k/E``.
 
     Parameters
     ----------
     problem : Problem
+    at : ndarray, shape (ndim,), optional
+        A point in the sampling space ``u`` whose structure sets the laws' scales
+        (default: the prior medians and the beam as declared). A point whose first
+        mode cannot be computed (e.g. outside the priors) falls back to the default.
     """
 
     _LOG = (LogUniform, LogNormal, HalfNormal)
@@ -119,7 +135,7 @@ class SamplerCoordinates:
     #: unit parameter beside it (``ζ1 = x · factor · integral / ω1``).
     _LAWS = {"gamma": (0, np.log(0.5)), "c_d": (1, np.log(0.5)), "eta": (1, None)}
 
-    def __init__(self, problem: Problem) -> None:
+    def __init__(self, problem: Problem, at: np.ndarray | None = None) -> None:
         beam = problem.trial.beam
         pri = problem.priors
         idx = [problem.names.index(n) for n in self._LAWS
@@ -132,8 +148,41 @@ class SamplerCoordinates:
         self.clamp = ClampCoordinates.for_problem(problem)
         self.coupled = self.clamp
         self.c = np.zeros(0)
+        self.delta = np.zeros(0)
+        self.at_point = False
         if self.group.size:
-            self.c = self.offset + self._reference_integrals(problem)
+            ref = None if at is None else self._integrals_at(problem, at)
+            if ref is None:
+                self.c = self.offset + self._reference_integrals(problem)
+                self.delta = np.zeros(self.group.size)
+            else:
+                log_integral, log_w1 = ref
+                self.c = self.offset + log_integral - log_w1
+                self.at_point = True
+                self.delta = np.zeros(self.group.size)
+                if self.clamp is not None:  # the tables' scales at ``at``, made exact there
+                    cl = self.clamp
+                    u = np.asarray(at, dtype=float)
+                    s = u[cl.ik] - u[cl.iE]
+                    table = (cl.mode_integrals(s)[self.kinds]
+                             - 0.5 * (u[cl.iE] + cl.h(s)[0]))
+                    self.delta = log_integral - log_w1 - table
+
+    def _integrals_at(self, problem: Problem, at: np.ndarray
+                      ) -> tuple[np.ndarray, float] | None:
+        """``log`` of each law's first-mode integral and ``log ω1`` at ``at``, or None."""
+        u = np.asarray(at, dtype=float).reshape(1, -1)
+        if u.shape[1] != problem.ndim or not np.all(np.isfinite(u)):
+            return None
+        P = problem.forward_params(problem.theta(u))
+        if not problem.forward.check(P)[0]:
+            return None
+        w1, phi = problem.forward.first_mode(P)
+        fe = problem.forward.fe
+        integral = np.array([phi[0] @ fe.G @ phi[0], phi[0] @ fe.KV @ phi[0]])[self.kinds]
+        if not (np.isfinite(w1[0]) and w1[0] > 0 and np.all(integral > 0)):
+            return None
+        return np.log(integral), float(np.log(w1[0]))
 
     def _reference_integrals(self, problem: Problem) -> np.ndarray:
         """``log(integral/ω1)`` per law at the prior medians and the beam as declared."""
@@ -191,6 +240,8 @@ class SamplerCoordinates:
         # offset and kinds are read only with a clamp map (_scales)
         out.offset = None if offset is None else np.asarray(offset, dtype=float)
         out.kinds = None if kinds is None else np.asarray(kinds, dtype=int)
+        out.delta = np.zeros(out.group.size)
+        out.at_point = False
         return out
 
     def _scales(self, U: np.ndarray, V: np.ndarray) -> np.ndarray:
@@ -203,7 +254,7 @@ class SamplerCoordinates:
         if cl is None:
             return self.c
         integrals = cl.mode_integrals(U[..., cl.ik] - U[..., cl.iE])[..., self.kinds]
-        return self.offset + integrals - 0.5 * V[..., cl.iE][..., None]
+        return self.offset + integrals + self.delta - 0.5 * V[..., cl.iE][..., None]
 
     def laws_to_v(self, U: np.ndarray, V: np.ndarray) -> None:
         """Write the laws' sampler coordinates into ``V`` (in place) from ``U``.
@@ -268,8 +319,9 @@ class SamplerCoordinates:
         if self.group.size:
             # "FE first mode": the scales of fem.first_mode_integrals (a checkpoint made
             # with the uniform-beam scales of earlier versions is refused, not resumed).
-            parts.append("(" + ", ".join(self.law_names)
-                         + ") as log total first-mode damping (FE first mode) and log ratios")
+            where = " at the start point" if self.at_point else ""
+            parts.append("(" + ", ".join(self.law_names) + ") as log total first-mode "
+                         f"damping (FE first mode{where}) and log ratios")
         if self.clamp is not None:
             parts.append(self.clamp.describe())
         return "u with " + "; ".join(parts) if parts else "u"

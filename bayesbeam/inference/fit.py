@@ -569,7 +569,7 @@ def fit(
     nwalkers = walker_count(nwalkers, ndim)
     scale = walker_scale(problem, u_map)
     u0 = init_walkers(problem.log_prob, u_map, nwalkers, rng=rng, scale=scale)
-    coords = SamplerCoordinates(problem)
+    coords = SamplerCoordinates(problem, at=u_map)  # the structure's scales at the MAP
     chain: Chain = sample_in_coordinates(
         problem.log_prob,
         coords,

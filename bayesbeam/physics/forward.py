@@ -497,6 +497,27 @@ class Forward:
         self._last_K, self._last_M = K, M
         return omega, C, phi
 
+    def first_mode(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
+        """Each set's first natural frequency and M-orthonormal first mode shape.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (B, P), or dict
+            Admissible parameter sets (see :meth:`check`).
+
+        Returns
+        -------
+        omega1 : ndarray, shape (B,)
+            Undamped first natural frequency in rad/s.
+        phi1 : ndarray, shape (B, n)
+            The first mode over the FE dofs, ``φ1ᵀ M φ1 = 1`` (``M`` of each set's own
+            structure: attached masses included).
+        """
+        theta = self._columns(theta)
+        omega, _, phi = self.modal_system(theta)
+        phi1 = phi[..., 0]
+        return omega[:, 0], np.broadcast_to(phi1, (theta.shape[0], phi1.shape[-1]))
+
     def _initial_state(
         self, theta: np.ndarray, omega: np.ndarray, phi: np.ndarray
     ) -> np.ndarray | None:

@@ -431,6 +431,10 @@ class NonlinearForward:
             ok &= np.isfinite(theta[:, self._i_slope])
         return ok
 
+    def first_mode(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
+        """Return the linear part's first frequency and mode (:meth:`.Forward.first_mode`)."""
+        return self.linear.first_mode(self._columns(theta)[:, self._lin_idx])
+
     def modes(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
         """Natural frequencies (Hz) and damping ratios of the linear part of one set.
 
