@@ -57,23 +57,16 @@ def _riccati_kernel_py(P, wi, A11, A12, A21, max_iter, tol):
         a11 = np.ascontiguousarray(A11[b])
         a12 = np.ascontiguousarray(A12[b])
         a21 = np.ascontiguousarray(A21[b])
-        # A22⁻¹ A21 and A12 A22⁻¹ (the constant terms).
-        ai_a21 = np.empty((2 * r, n))
-        ai_a21[:r] = Pb @ a21[:r]
-        a12_ai = np.empty((n, 2 * r))
-        a12_ai[:, :r] = np.ascontiguousarray(a12[:, :r]) @ Pb
-        for i in range(r):
-            for j in range(n):
-                ai_a21[i, j] -= w[i] * a21[r + i, j]
-                ai_a21[r + i, j] = w[i] * a21[i, j]
-                a12_ai[j, i] += a12[j, r + i] * w[i]
-                a12_ai[j, r + i] = -a12[j, i] * w[i]
-        x = -ai_a21
-        y = a12_ai.copy()
         ax = np.empty((2 * r, n))
         ya = np.empty((n, 2 * r))
-        for _ in range(max_iter):
-            # A22⁻¹ X and Y A22⁻¹ through the blocks.
+        # Step 0 applies A22⁻¹ to A21 and A12 (the constant terms) and starts the
+        # iterates there; every later step applies it to the iterates.
+        x = a21.copy()
+        y = a12.copy()
+        ai_a21 = np.empty((2 * r, n))
+        a12_ai = np.empty((n, 2 * r))
+        for it in range(max_iter + 1):
+            # A22⁻¹ x and y A22⁻¹ through the blocks.
             ax[:r] = Pb @ x[:r]
             ya[:, :r] = np.ascontiguousarray(y[:, :r]) @ Pb
             for i in range(r):
@@ -82,6 +75,12 @@ def _riccati_kernel_py(P, wi, A11, A12, A21, max_iter, tol):
                     ax[r + i, j] = w[i] * x[i, j]
                     ya[j, i] += y[j, r + i] * w[i]
                     ya[j, r + i] = -y[j, i] * w[i]
+            if it == 0:
+                ai_a21[:] = ax
+                a12_ai[:] = ya
+                x = -ai_a21
+                y = a12_ai.copy()
+                continue
             xn = ax @ (a11 + a12 @ x) - ai_a21
             yn = (a11 - y @ a21) @ ya + a12_ai
             dx = math.sqrt(np.sum((xn - x) ** 2) / max(np.sum(xn * xn), 1e-300))
