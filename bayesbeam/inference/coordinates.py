@@ -148,18 +148,16 @@ class SamplerCoordinates:
         self.clamp = ClampCoordinates.for_problem(problem)
         self.coupled = self.clamp
         self.c = np.zeros(0)
-        self.delta = np.zeros(0)
+        self.delta = np.zeros(self.group.size)  # the clamp tables' correction at ``at``
         self.at_point = False
         if self.group.size:
             ref = None if at is None else self._integrals_at(problem, at)
             if ref is None:
                 self.c = self.offset + self._reference_integrals(problem)
-                self.delta = np.zeros(self.group.size)
             else:
                 log_integral, log_w1 = ref
                 self.c = self.offset + log_integral - log_w1
                 self.at_point = True
-                self.delta = np.zeros(self.group.size)
                 if self.clamp is not None:  # the tables' scales at ``at``, made exact there
                     cl = self.clamp
                     u = np.asarray(at, dtype=float)
