@@ -126,11 +126,16 @@ def band_limit(
     coupled = finite & ~classical
     straddle = ((slow <= w_band) & ~keep).any(axis=1)
     red: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
-    for pattern in np.unique(keep[coupled & ~straddle], axis=0):
-        if not pattern.any():
+    # Sets grouped by the modes they keep (np.unique(..., axis=0) on a bool matrix took
+    # ~1.4 ms per batch of 64; a dict of row bytes a few µs).
+    groups: dict[bytes, list[int]] = {}
+    for b in np.flatnonzero(coupled & ~straddle):
+        groups.setdefault(keep[b].tobytes(), []).append(int(b))
+    for members in groups.values():
+        kept = np.flatnonzero(keep[members[0]])
+        if kept.size == 0:
             continue
-        rows = np.flatnonzero(coupled & ~straddle & (keep == pattern).all(axis=1))
-        kept = np.flatnonzero(pattern)
+        rows = np.asarray(members)
         K = np.r_[kept, m + kept]
         M, a, g, P, ok = _invariant_reduction(A[rows], z0[rows], h[rows], K, w_band,
                                              backend=backend)
@@ -236,8 +241,13 @@ def _invariant_reduction(
     B, n = A.shape[0], K.size
     ok = np.ones(B, dtype=bool)
     with np.errstate(all="ignore"):
-        P, wi = _inverse_blocks(A[:, dm, m + dm], A[:, (m + dm)[:, None], m + dm])
-        kernel = compiled_kernel(_riccati_kernel_py) if _use_numba(backend) else None
+        if dm.size and np.all(np.diff(dm) == 1):  # the usual case: slices, no gather
+            lo, hi = dm[0], dm[-1] + 1
+            omega_d = np.diagonal(A[:, lo:hi, m + lo : m + hi], axis1=1, axis2=2)
+            P, wi = _inverse_blocks(omega_d, A[:, m + lo : m + hi, m + lo : m + hi])
+        else:
+            P, wi = _inverse_blocks(A[:, dm, m + dm], A[:, (m + dm)[:, None], m + dm])
+        kernel = compiled_kernel(_riccati_kernel_py, True) if _use_numba(backend) else None
         if kernel is not None:
             X, Y, done = kernel(*(np.ascontiguousarray(v) for v in (P, wi, A11, A12, A21)),
                                 MAX_ITERATIONS, TOLERANCE)

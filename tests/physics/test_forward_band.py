@@ -187,7 +187,7 @@ def test_invariant_reduction_routes_agree(backend, monkeypatch):
     ref = band_limit(A, z0, h, omega, C, wb, backend="numpy")
     assert ref[0].shape[1] == 4  # reduced to modes 1 and 2 by the iteration
     if backend == "python":  # the kernel's logic, uncompiled
-        monkeypatch.setattr(sensor_mod, "compiled_kernel", lambda kernel: kernel)
+        monkeypatch.setattr(sensor_mod, "compiled_kernel", lambda kernel, *flags: kernel)
         monkeypatch.setattr(sensor_mod, "_use_numba", lambda backend: True)
         assert sensor_mod.compiled_kernel(_riccati_kernel_py) is _riccati_kernel_py
     out = band_limit(A, z0, h, omega, C, wb, backend="auto" if backend == "python" else "numba")
