@@ -140,7 +140,9 @@ def band_limit(
             continue
         rows = np.asarray(members)
         K = np.r_[kept, m + kept]
-        M, a, g, P, ok = _invariant_reduction(A[rows], z0[rows], h[rows], K, w_band,
+        # Every set in one group (the usual case): no copy of the whole batch.
+        sub = slice(None) if rows.size == B else rows
+        M, a, g, P, ok = _invariant_reduction(A[sub], z0[sub], h[sub], K, w_band,
                                              backend=backend)
         for j in np.flatnonzero(ok):
             red[int(rows[j])] = (M[j], a[j], g[j], P[j])
