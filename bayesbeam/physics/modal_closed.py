@@ -45,13 +45,12 @@ term and stamp.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from functools import lru_cache
 
 import numpy as np
 
+from bayesbeam.physics._jit import compiled_kernel
 from bayesbeam.physics.modal_kernel import _term_sum_kernel_py
-from bayesbeam.physics.propagate import _finite_rows, _pick_backend, numba_available
+from bayesbeam.physics.propagate import _finite_rows, _pick_backend
 
 __all__ = [
     "NEAR_CRITICAL",
@@ -214,41 +213,6 @@ def _powers(
         if filled < n:
             f = f * f
     return out
-
-
-@lru_cache(maxsize=None)
-def compiled_kernel(kernel: Callable, reassociate: bool = False) -> Callable | None:
-    """Compile a plain-Python kernel with numba, once per process (cached on disk).
-
-    Parameters
-    ----------
-    kernel : callable
-        A kernel body of :mod:`bayesbeam.physics.modal_kernel`.
-    reassociate : bool
-        Also allow reassociation (``fastmath`` ``reassoc``), which lets the compiler
-        vectorise dot products by summing in a different order: for kernels whose
-        result does not depend on the order beyond rounding (an iteration to a fixed
-        point, :mod:`bayesbeam.physics.sensor_kernel`: measured 1.5x there).
-
-    Returns
-    -------
-    callable or None
-        The compiled kernel (typed and compiled on its first call, ~1 s; later processes
-        load it from numba's cache), or None where numba is not importable.
-
-    Notes
-    -----
-    ``nogil`` so that callers may run batches in threads; serial (``parallel=False``): the
-    callers already batch sets and the target machines have 2 cores. ``fastmath`` is
-    limited to ``contract`` (fused multiply-add: one rounding less per product, no
-    reassociation unless asked), measured 15 % faster.
-    """
-    if not numba_available():
-        return None
-    import numba
-
-    flags = {"contract", "reassoc"} if reassociate else {"contract"}
-    return numba.njit(nogil=True, cache=True, fastmath=flags, error_model="numpy")(kernel)
 
 
 #: Sets per block of :func:`term_sum_uniform`: keeps a block's powers and output in cache

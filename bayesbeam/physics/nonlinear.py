@@ -130,6 +130,7 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam.physics._jit import compiled_kernel
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import (
     Forward,
@@ -138,7 +139,6 @@ from bayesbeam.physics.forward import (
     grid_with_holes,
     parameter_columns,
 )
-from bayesbeam.physics.modal_closed import compiled_kernel
 from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 from bayesbeam.physics.propagate import _pick_backend
 from bayesbeam.physics.slow_flow_kernel import _correction_py, _rk4_grid_py

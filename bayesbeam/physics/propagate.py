@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam._util import one_blas_thread
+from bayesbeam.physics._jit import compiled_kernel, numba_available
 from bayesbeam.physics.expm import (
     _MAX_SQUARINGS,
     _PRESCALE_NORM,
@@ -607,26 +608,6 @@ def eigenvalues(A) -> np.ndarray:
 # split over threads.
 
 
-@lru_cache(maxsize=1)
-def _numba_kernel():
-    try:
-        import numba
-    except ImportError:
-        return None
-    return numba.njit(nogil=True, cache=True)(_uniform_kernel_py)
-
-
-def numba_available() -> bool:
-    """Whether numba imports here (a dependency; a platform without it runs numpy).
-
-    Returns
-    -------
-    bool
-        True if numba imports (the kernel is compiled on first use, a few seconds).
-    """
-    return _numba_kernel() is not None
-
-
 def _pick_backend(backend: str) -> str:
     if backend not in ("numpy", "numba", "auto"):
         raise PropagationError(f"backend must be 'numpy', 'numba' or 'auto', got {backend!r}")
@@ -640,7 +621,7 @@ def _pick_backend(backend: str) -> str:
 
 
 def _uniform_numba(A, z0, h, dt, n):
-    kernel = _numba_kernel()
+    kernel = compiled_kernel(_uniform_kernel_py, ())
     degrees = np.array(sorted(_THETA), dtype=np.int64)
     theta = np.array([_THETA[d] for d in degrees])
     consts = (_plan(n), theta, degrees, _inv_factorials(int(degrees.max())))

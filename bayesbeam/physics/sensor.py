@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from bayesbeam.physics.modal_closed import compiled_kernel
+from bayesbeam.physics._jit import compiled_kernel
 from bayesbeam.physics.propagate import _pick_backend
 from bayesbeam.physics.sensor_kernel import _riccati_kernel_py
 
@@ -254,7 +254,8 @@ def _invariant_reduction(
             P, wi = _inverse_blocks(omega_d, A[:, m + lo : m + hi, m + lo : m + hi])
         else:
             P, wi = _inverse_blocks(A[:, dm, m + dm], A[:, (m + dm)[:, None], m + dm])
-        kernel = compiled_kernel(_riccati_kernel_py, True) if _use_numba(backend) else None
+        kernel = (compiled_kernel(_riccati_kernel_py, ("contract", "reassoc"))
+                  if _use_numba(backend) else None)
         if kernel is not None:
             X, Y, done = kernel(*(np.ascontiguousarray(v) for v in (P, wi, A11, A12, A21)),
                                 MAX_ITERATIONS, TOLERANCE)
