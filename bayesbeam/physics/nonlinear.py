@@ -370,6 +370,7 @@ class NonlinearForward:
         self.t0 = self.linear.t0
         self.initial = initial
         self.quantity = self.linear.quantity
+        self.bandwidth = self.linear.bandwidth  # Hz or None, as Forward's
         m = self.fe.n_dof
         self.n_modes = int(min(n_modes, m))
         self.steps_per_period = spp

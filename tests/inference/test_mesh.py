@@ -77,3 +77,23 @@ def test_check_at_an_invalid_point_is_not_converged():
     bad[a.names.index("E")] = np.nan
     chk = mesh_check(a, b, bad)
     assert not chk["converged"] and chk["delta_loglik"] == np.inf
+
+
+def test_amplitude_dependent_model_goes_through_the_check():
+    # An amplitude-dependent model's forward (physics.nonlinear) wraps a linear one; the
+    # check and its record must work through it: fit() of `+drag` once crashed here,
+    # after its MAP search, on the forward model's missing `bandwidth`.
+    trial = _trial("displacement")
+    pb = Problem(trial, "viscous+kv+drag", n_elements=8)
+    u = pb.priors.from_unit_cube(np.full(pb.ndim, 0.5))  # drag at its prior median
+    vals = {**TRUE, "sigma": NOISE["displacement"]}
+    known = [i for i, n in enumerate(pb.names) if n in vals]
+    theta = pb.priors.to_theta(u[None])[0]
+    theta[known] = [vals[pb.names[i]] for i in known]
+    u = pb.priors.to_u(theta[None])[0]
+    assert np.isfinite(pb.log_prob(u[None])[0])
+    final, _, _, rec = converge_mesh(pb, u, float(pb.log_prob(u[None])[0]), _keep,
+                                     refine=False)
+    assert final is pb and len(rec["checks"]) == 1
+    assert rec["band_hz"] == pytest.approx(512 / 2.56)
+    assert np.isfinite(rec["checks"][0]["delta_loglik"])
