@@ -3,14 +3,17 @@
 The fixed-point iteration of :func:`bayesbeam.physics.sensor._invariant_reduction`, one
 parameter set at a time, written as plain Python on numpy arrays so that numba can
 compile it (:func:`bayesbeam.physics._jit.compiled_kernel`, done lazily by
-:mod:`bayesbeam.physics.sensor`) and so that it runs, slowly, without numba (the tests
-check its logic that way). Nothing here imports numba.
+:mod:`bayesbeam.physics.sensor`, with ``reassoc`` so that its dot products vectorise) and
+so that it runs, slowly, without numba (the tests check its logic that way). Nothing
+here imports numba.
 
 Why a kernel: the iteration multiplies thin blocks (the dropped modes' ``2r x 2k``
 coupling) ~30 times per set; the batched numpy route pays, per step, a pass over every
 set's dense ``r x r`` block to gather the sets still iterating, and temporaries of the
 whole batch, which measured ~4 ms per set on a 32-element beam with two modes in band.
-Here each set's blocks stay in cache for all its steps.
+Here each set's blocks stay in cache for all its steps, and a step allocates nothing:
+a first version that called numpy's small products inside the compiled loop spent
+~2.3x the arithmetic on their calls and temporaries.
 """
 
 from __future__ import annotations
