@@ -431,17 +431,10 @@ def _converged_mesh(eng: _Engine, cur: _State, label: str, log: Callable[[str], 
     from bayesbeam.inference.fit import local_map
     from bayesbeam.inference.mesh import converge_mesh
 
-    pb, u, _, mesh = converge_mesh(cur.problem, cur.u, cur.ll, local_map, refine=refine,
-                                   progress=log)
-    if refine or mesh["converged"]:
-        eng.notes.append(f"{label}: {mesh['summary']}")
-    else:
-        chk = mesh["checks"][-1]
-        eng.notes.append(
-            f"{label}: the final model's MAP is NOT converged on {pb.n_elements} elements "
-            f"(next mesh {chk['refined_n_elements']}: Δloglik {chk['delta_loglik']:.3g} nat, "
-            f"Δy {chk['max_delta_prediction_sigma']:.3g} σ); its results may carry "
-            "discretisation error (no round followed to refine it: raise max_rounds)")
+    pb, u, _, mesh = converge_mesh(
+        cur.problem, cur.u, cur.ll, local_map, refine=refine, progress=log,
+        kept_because="(the final model: no round followed to refine it; raise max_rounds)")
+    eng.notes.append(f"{label}: {mesh['summary']}")
     if pb.n_elements == eng.n_elements:
         return cur
     model = cur.problem.model

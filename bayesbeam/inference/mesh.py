@@ -90,6 +90,7 @@ def converge_mesh(
     *,
     refine: bool = True,
     progress: Callable[[str], None] | None = None,
+    kept_because: str = "as asked (refine_mesh=False)",
 ) -> tuple[Problem, np.ndarray, float, dict[str, Any]]:
     """Refine the mesh until the MAP's prediction no longer depends on it.
 
@@ -108,6 +109,8 @@ def converge_mesh(
         False: check the starting mesh against the next one and report, but keep it.
     progress : callable, optional
         Called with a one-line message at each refinement.
+    kept_because : str
+        Why an unconverged mesh was kept with ``refine`` False (ends the summary).
 
     Returns
     -------
@@ -157,7 +160,7 @@ def converge_mesh(
             f"({last['refined_n_elements']}) changes the MAP's prediction (Δloglik "
             f"{last['delta_loglik']:.3g} nat, Δy {last['max_delta_prediction_sigma']:.3g} σ)"
             + ("; results may carry discretisation error" if refine else
-               "; the mesh was kept as asked (refine_mesh=False)")
+               f"; the mesh was kept {kept_because}")
         )
     record = {
         "n_elements": problem.n_elements,
