@@ -49,7 +49,8 @@ def _rk4_grid_py(sig, Bs, W2, wq, dcoef, fcoef, pcoef, k1, h, n_steps, N, gg, dg
         Quadrature weights (m).
     dcoef, fcoef : ndarray, shape (b, K)
         Drag and friction coefficients of the rate (``inf`` in ``fcoef``: a mode with no
-        coefficient, stopped at once).
+        coefficient, stopped at once); a mode with ``dcoef`` 0 (no drag, or a passive
+        mode) still enters the others' drag, its own is not evaluated.
     pcoef : ndarray, shape (b,)
         Phase-rate coefficient of the first mode (rad/s per unit ρ e^{στ}).
     k1 : ndarray of int64, shape (b,)
@@ -125,13 +126,16 @@ def _rk4_grid_py(sig, Bs, W2, wq, dcoef, fcoef, pcoef, k1, h, n_steps, N, gg, dg
                         # and A_k² = tot - B_k²: S is the same for every mode.
                         sq = math.sqrt(tot)
                         for k in range(K):
+                            if dcoef[s, k] == 0.0:  # no drag of its own (a passive mode)
+                                continue
                             bb = abs(bx[k])
                             x = (bb / sq if sq > 0 else 1.0) * nt
                             j = min(int(x), nt - 1)
                             g = sq * (gg[j] + (x - j) * dg[j])
                             acc[k] += W2[s, k, q] * g * wq[q]
                     for k in range(K):
-                        out[k] -= r[k] * dcoef[s, k] * acc[k]
+                        if dcoef[s, k] != 0.0:
+                            out[k] -= r[k] * dcoef[s, k] * acc[k]
                 for k in range(K):
                     if r[k] > 0 and fcoef[s, k] > 0:
                         out[k] -= fcoef[s, k] / e[k]

@@ -489,3 +489,51 @@ def test_forces_too_weak_to_move_an_envelope_give_the_linear_signal():
     lin = f.simulate({**p, "drag": 0.0, "f1_slope": 0.0})
     assert tiny.valid[0]
     np.testing.assert_array_equal(tiny.y, lin.y)
+
+
+def _drag_with_and_without_passive(monkeypatch, model, initial, p, backend):
+    """Signal with the passive-mode rule, without it (every mode feels drag), linear."""
+    t = np.arange(4000) / 256
+    f = NonlinearForward(strip("acceleration"), model, t, n_elements=8, initial=initial,
+                         bandwidth=60.0, backend=backend)  # modes 1, 2 shown; 3-5 hidden
+    X = np.array([[p[n] for n in f.param_names]])
+    cm = f._complex_modes(X[:, f._lin_idx])
+    Bs = np.abs(cm["W"]) * np.abs(cm["c"])[:, :, None]
+    passive = f._passive(cm, Bs)[0]
+    y = f.simulate(X).y[0]
+    lin = f.simulate(X * np.where(np.array(f.param_names) == "drag", 0.0, 1.0)).y[0]
+    with monkeypatch.context() as m:
+        m.setattr(NonlinearForward, "_passive",
+                  lambda self, cm, Bs: np.zeros(cm["lam"].shape, dtype=bool))
+        y_all = f.simulate(X).y[0]
+    ratio = np.max(Bs[0], axis=1) / np.max(Bs[0])
+    return passive, ratio, y, y_all, lin
+
+
+@pytest.mark.parametrize("backend", ["numpy", "auto"])
+def test_passive_modes_change_the_drag_by_their_squared_amplitude_ratio(monkeypatch, backend):
+    # SH couples the modes, so with the first two modal amplitudes free the hidden
+    # modes 3-5 are excited only through the damping (velocity 1e-6 to 3e-6 of mode 2's):
+    # they become passive. Their effect on the shown modes' drag is O(ratio²)
+    # (G(A, B) = 4B/3π (1 + O(A²/B²))): measured 7.1e-12 of the peak against
+    # ratio² × the drag correction = 8.6e-12; 4x that is the bound.
+    p = {"E": 70e9, "a": 2e-4, "b": 0.05, "drag": DRAG,
+         "A1": 5e-3, "B1": 0.0, "A2": 3e-4, "B2": 1e-4}
+    passive, ratio, y, y_all, lin = _drag_with_and_without_passive(
+        monkeypatch, "sh+drag", "modes:2", p, backend)
+    np.testing.assert_array_equal(passive, [False, False, True, True, True])
+    peak = np.max(np.abs(y_all))
+    drag_effect = np.max(np.abs(y_all - lin)) / peak
+    assert drag_effect > 0.1  # the drag is large: the comparison means something
+    err = np.max(np.abs(y - y_all)) / peak
+    assert 0 < err <= 4 * np.max(ratio[passive]) ** 2 * drag_effect
+
+
+def test_hidden_modes_that_carry_motion_keep_their_drag(monkeypatch):
+    # A release excites the hidden modes (velocity 0.6-3 % of mode 1's): none is
+    # passive, and the signal is the one where every mode feels drag, bit for bit.
+    p = {"E": 70e9, "gamma": 0.01, "c_d": 2e-5, "drag": DRAG, "w0": 5e-3}
+    passive, ratio, y, y_all, _ = _drag_with_and_without_passive(
+        monkeypatch, "viscous+kv+drag", "release", p, "auto")
+    assert not passive.any() and np.min(ratio) > 1e-3
+    np.testing.assert_array_equal(y, y_all)
