@@ -37,6 +37,18 @@ __all__ = ["best_map", "chain_map", "curvature_scales", "diagonal_sd", "escape_b
 #: the search. On Al 50 cm #0 the second and third passes gained several nats each.
 MAX_PASSES = 4
 PASS_GAIN = 1e-3
+#: Finite-difference step of :func:`local_map`'s gradient, in units of the coordinates'
+#: conditional sd (:func:`curvature_scales`). A whole record's log density carries
+#: rounding noise of δ ≈ 1e-2 nats along the structural parameters (steel record,
+#: 32 elements: the predicted signal jitters by ~1e-8 of its peak, the eigen-solves'
+#: rounding, and 11063 samples sum it), and a central difference errs by about
+#: δ/h + h² |f‴| / 6 (Nocedal & Wright 2006, §8.1): ~1e4 nats per sd at the former step
+#: 1e-6, noise on which L-BFGS-B's line searches failed and the searches stalled
+#: thousands of nats below the mode, 1 nat per sd at 1e-2, where the cubic term is
+#: ~2e-5 |f‴| (a central difference is exact on a quadratic whatever the step).
+#: ``studies/bench_screen.py`` measures it on the measured records.
+FD_STEP = 1e-2
+
 #: :func:`best_map` Newton-polishes this many of its best distinct local results,
 #: :data:`FIRST_STEPS` steps each, then the best of them to the end. 8 (was 3): on the
 #: shipped beam 1, trial 1 with the clamp spring the start nearest the mode ranks 4th
@@ -210,7 +222,7 @@ def local_map(problem: Any, u0: np.ndarray, *, maxiter: int = 300,
 
         def negf(z: np.ndarray, x0: np.ndarray = x0, sc: np.ndarray = sc
                  ) -> tuple[float, np.ndarray]:
-            val, g = fd_gradient(lambda Z: f(x0 + Z * sc), z, 1e-6, one_sided=True)
+            val, g = fd_gradient(lambda Z: f(x0 + Z * sc), z, FD_STEP, one_sided=True)
             if not np.isfinite(val):
                 return 1e300, np.zeros_like(z)
             return -val, -np.where(np.isfinite(g), g, 0.0)

@@ -85,6 +85,34 @@ def test_local_map_reaches_a_badly_scaled_correlated_mode():
     assert 0.5 * d @ P @ d == -v or abs(0.5 * d @ P @ d + v) < 1e-9
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_local_map_reaches_the_mode_of_a_density_with_rounding_noise(seed):
+    # A whole record's log density jitters by ~1e-2 nats from point to point (the
+    # eigen-solves' rounding summed over ~1e4 samples: optimum.FD_STEP). Here: the
+    # badly scaled Gaussian above plus white noise of that size at every scale down to
+    # ~1e-8 sd (a hash of the point, its frequencies drawn per seed). At the former step
+    # (1e-6 sd: gradient noise ~1e4 nats per sd) the search stalled 1.6e3-1.0e4 nats
+    # below the mode on these five; at 1e-2 (~0.2 nats per sd) it ends within ~0.2 sd,
+    # 0.012-0.036 nats below it: 0.1 nat is the bound.
+    sd = np.array([1e-6, 1e-3, 1.0, 0.5])
+    corr = np.eye(4)
+    corr[2, 3] = corr[3, 2] = 0.99
+    mode = np.array([3.0, -1.0, 0.2, 0.4])
+    pb, _ = _gaussian_problem(sd, corr, mode, [[-10, 10]] * 4)
+    smooth = pb.log_prob
+    freq = np.random.default_rng(seed).uniform(1e7, 1e8, 4)
+
+    def noisy(U):
+        phase = np.atleast_2d(U) / sd @ freq
+        return smooth(U) + 1e-2 * (np.modf(np.abs(np.sin(phase)) * 43758.5453)[0] - 0.5)
+
+    pb.log_prob = noisy
+    u0 = mode + np.array([1e-4, 1e-1, 1.0, -0.8])
+    assert smooth(u0[None])[0] < -1e3
+    u, _ = local_map(pb, u0)
+    assert smooth(u[None])[0] > -0.1
+
+
 def test_local_map_stays_on_a_bound_and_newton_polish_finishes():
     # The mode is outside the support (the MAP is on the bound of coordinate 1); the
     # search returns a point on the bound (within the 1e-9 margin of map_bounds) whose
