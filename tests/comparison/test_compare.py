@@ -355,7 +355,12 @@ def test_cli_compare_end_to_end(tmp_path, capsys):
             # same draws and pointwise terms; the relative efficiency is estimated
             # slightly differently (0.01 nat here): agreement to 0.1 nat, well inside se
             assert arviz.loo(trees[m["name"]]).elpd == pytest.approx(m["elpd_loo"], abs=0.1)
-    assert table.index[0] == d["best"]
+    # ArviZ ranks by ELPD ("best" is by evidence): its first is ours by ELPD up to the
+    # 0.1 nat agreement above (here the two nested models differ by 0.017 nat, so the
+    # order itself is within it, and it moved with the MAP search's gradient step).
+    elpd = {m["name"]: m["elpd_loo"] for m in d["models"]}
+    assert elpd[table.index[0]] >= elpd[d["best_elpd"]] - 0.1
+    assert d["best_elpd"] == max(elpd, key=elpd.get)
     assert (out / "zeta_vs_f.png").is_file()
     assert set(d["modes"]) == {"viscous", "viscous+kv"}
 
