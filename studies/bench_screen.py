@@ -28,6 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+# The study's own record labels (run as a script, studies/ is on the path).
+from real_data import label
+
 from bayesbeam._util import one_blas_thread
 from bayesbeam.cli import options as opts
 from bayesbeam.cli.diagnose import register
@@ -36,16 +39,10 @@ from bayesbeam.inference import optimum
 from bayesbeam.inference.problem import Problem
 from bayesbeam.physics.models import parse_model
 from bayesbeam.trials.io import write_trial
-from bayesbeam.trials.realdata import ENES, list_real_datasets
+from bayesbeam.trials.realdata import list_real_datasets
 
 MODELS = ("viscous+kv+ar1_noise", "viscous+kv+stiffness_gradient+ar1_noise",
           "viscous+kv+stiffness_gradient+drag+ar1_noise")
-
-
-def _label(rec) -> str:
-    if rec.dataset == ENES:
-        return f"alu{rec.kwargs['length_cm']}-{rec.kwargs['index']}"
-    return "steel"
 
 
 class _Counted:
@@ -96,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--elements", type=int, default=32, help="mesh (default 32)")
     ap.add_argument("--workdir", type=Path, default=None)
     args = ap.parse_args(argv)
-    recs = [r for r in list_real_datasets() if _label(r) == args.record]
+    recs = [r for r in list_real_datasets() if label(r) == args.record]
     if not recs:
         print(f"record {args.record!r} not found under ../shared/data/real", file=sys.stderr)
         return 1
