@@ -24,7 +24,11 @@
 * :func:`progress_bar`: the one progress bar of every long loop (``tqdm``): a bar on a
   terminal, a widget in Jupyter, a plain line every ``log_interval`` s in a log file;
 * :func:`interval_digits` and :func:`fmt_interval`: enough significant digits that a
-  value and the ends of its interval print as different numbers.
+  value and the ends of its interval print as different numbers;
+* :func:`compiled_kernel` and :func:`numba_available`: numba, where it imports, the one
+  place that compiles the package's plain-Python kernels (the ``*_kernel`` modules of
+  :mod:`bayesbeam.physics` and :mod:`bayesbeam.stats`), so that the package imports and
+  runs without numba and the tests can check the kernels' logic uncompiled.
 
 Only the standard library is imported at import time (numpy when a value needs it, tqdm
 when a bar is made).
@@ -43,12 +47,14 @@ import os
 import sys
 import threading
 from collections.abc import Callable, Iterator, Mapping
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 __all__ = [
     "SCHEMA_VERSION",
     "atomic_path",
+    "compiled_kernel",
     "distribution_version",
     "file_sha256",
     "finite_json",
@@ -57,6 +63,7 @@ __all__ = [
     "interval_digits",
     "json_default",
     "lazy_exports",
+    "numba_available",
     "one_blas_thread",
     "job_guard",
     "progress_bar",
@@ -527,3 +534,55 @@ def fmt_interval(value: float, lo: float, hi: float, minimum: int = 3) -> tuple[
     d = interval_digits(value, lo, hi, minimum=minimum)
     # "#": keep trailing zeros, so 70.00e9 does not print as 7e+10 beside 6.998e+10.
     return tuple(f"{float(x):#.{d}g}" for x in (value, lo, hi))  # type: ignore[return-value]
+
+
+@lru_cache(maxsize=1)
+def numba_available() -> bool:
+    """Whether numba imports here (a dependency; a platform without it runs numpy).
+
+    Returns
+    -------
+    bool
+    """
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@lru_cache(maxsize=None)
+def compiled_kernel(kernel: Callable, fastmath: tuple[str, ...] = ("contract",)
+                    ) -> Callable | None:
+    """Compile a plain-Python kernel with numba, once per process (cached on disk).
+
+    Parameters
+    ----------
+    kernel : callable
+        A kernel body (module docstring).
+    fastmath : tuple of str
+        numba's ``fastmath`` flags. The default, ``contract`` (fused multiply-add: one
+        rounding less per product, no reassociation), measured 15 % faster on the closed
+        form's sum. ``("contract", "reassoc")`` also lets the compiler vectorise dot
+        products by summing in another order: for kernels whose result does not depend
+        on the order beyond rounding (an iteration to a fixed point,
+        :mod:`~bayesbeam.physics.sensor_kernel`: measured 1.5x there). ``()``: IEEE
+        arithmetic exactly as written (the propagation kernel).
+
+    Returns
+    -------
+    callable or None
+        The compiled kernel (typed and compiled on its first call, ~1 s; later processes
+        load it from numba's cache), or None where numba is not importable.
+
+    Notes
+    -----
+    ``nogil`` so that callers may run batches in threads; serial (``parallel=False``): the
+    callers already batch sets and the target machines have 2 cores.
+    """
+    if not numba_available():
+        return None
+    import numba
+
+    return numba.njit(nogil=True, cache=True, fastmath=set(fastmath) or False,
+                      error_model="numpy")(kernel)

@@ -37,6 +37,7 @@ import numpy as np
 
 from bayesbeam.inference.coordinates import PREBURN_STEPS, SamplerCoordinates, sample_in_coordinates
 from bayesbeam.inference.optimum import SCREEN_POLISHED, best_map, chain_map
+from bayesbeam.inference.settings import DIAGNOSIS_STOPPING
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import Model
 from bayesbeam.trials.trial import Trial
@@ -403,7 +404,9 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     where the viscous/KV trade-off that a record fixes only in total is a straight
     valley instead of a curved one (unit Jacobian: the density is unchanged). ``helpers``
     processes share each batch of the chains
-    (:class:`~bayesbeam.inference.parallel.ParallelLogProb`).
+    (:class:`~bayesbeam.inference.parallel.ParallelLogProb`). The chain stops by
+    :data:`~bayesbeam.inference.settings.DIAGNOSIS_STOPPING` (20 τ, τ settled to 5 %;
+    a full fit: 50 τ, 2 %), where the diagnosis's ESS target is met several times over.
     """
     from bayesbeam.inference import fit as fitmod
     from bayesbeam.inference.results import FitResult, make_provenance
@@ -422,6 +425,7 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
             pb.log_prob, SamplerCoordinates(pb, at=u_map), u0, seed=seed, helpers=helpers,
             max_steps=int(settings["max_steps"]), min_steps=int(settings["min_steps"]),
             target_ess=float(settings["target_ess"]), names=pb.names, progress=False,
+            **DIAGNOSIS_STOPPING,
             # As in fit(): a discarded first run returns stranded walkers.
             preburn=min(PREBURN_STEPS, int(settings["max_steps"]) // 4))
     for w in caught:
@@ -435,6 +439,7 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
         model=pb.model.name, chain=chain, priors=pb.priors, map_u=u_map,
         settings={"n_elements": pb.n_elements, "initial": pb.initial, "nwalkers": nwalkers,
                   "seed": seed, "total_seconds": time.perf_counter() - t0,
+                  **DIAGNOSIS_STOPPING,
                   "noise": "ar1" if "rho" in pb.names else "iid", "started_from": "diagnose MAP"},
         provenance=make_provenance({"trial": pb.trial.name, "data_sha256": pb.trial.sha256,
                                     "model": pb.model.name}),

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.integrate import solve_ivp
 
-from bayesbeam.physics._jit import compiled_kernel
+from bayesbeam._util import compiled_kernel
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import Forward
 from bayesbeam.physics.modal_kernel import _rotations_kernel_py

@@ -48,7 +48,7 @@ import math
 
 import numpy as np
 
-from bayesbeam.physics._jit import compiled_kernel
+from bayesbeam._util import compiled_kernel
 from bayesbeam.physics.modal_kernel import _term_sum_kernel_py
 from bayesbeam.physics.propagate import _finite_rows, _pick_backend
 

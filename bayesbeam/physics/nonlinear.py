@@ -133,7 +133,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam.physics._jit import compiled_kernel
+from bayesbeam._util import compiled_kernel
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.forward import (
     Forward,

@@ -50,8 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import one_blas_thread
-from bayesbeam.physics._jit import compiled_kernel, numba_available
+from bayesbeam._util import compiled_kernel, numba_available, one_blas_thread
 from bayesbeam.physics.expm import (
     _MAX_SQUARINGS,
     _PRESCALE_NORM,

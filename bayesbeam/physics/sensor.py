@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from bayesbeam.physics._jit import compiled_kernel
+from bayesbeam._util import compiled_kernel
 from bayesbeam.physics.propagate import _pick_backend
 from bayesbeam.physics.sensor_kernel import _riccati_kernel_py
 

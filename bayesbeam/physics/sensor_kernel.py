@@ -2,7 +2,7 @@
 
 The fixed-point iteration of :func:`bayesbeam.physics.sensor._invariant_reduction`, one
 parameter set at a time, written as plain Python on numpy arrays so that numba can
-compile it (:func:`bayesbeam.physics._jit.compiled_kernel`, done lazily by
+compile it (:func:`bayesbeam._util.compiled_kernel`, done lazily by
 :mod:`bayesbeam.physics.sensor`, with ``reassoc`` so that its dot products vectorise) and
 so that it runs, slowly, without numba (the tests check its logic that way). Nothing
 here imports numba.

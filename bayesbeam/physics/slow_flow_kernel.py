@@ -1,7 +1,7 @@
 """Compiled-on-demand kernels of the slow flow of the amplitude-dependent forward model.
 
 Plain Python on numpy arrays, one parameter set at a time, so that numba can compile them
-(:func:`bayesbeam.physics._jit.compiled_kernel`, done lazily by
+(:func:`bayesbeam._util.compiled_kernel`, done lazily by
 :mod:`bayesbeam.physics.nonlinear`) and so that they run, slowly, without numba (the tests
 check their logic that way). Nothing here imports numba. Two kernels:
 

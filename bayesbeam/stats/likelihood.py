@@ -46,6 +46,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal as sps
 
+from bayesbeam._util import compiled_kernel
+from bayesbeam.stats.likelihood_kernel import _ar1_sum_py
+
 __all__ = [
     "LikelihoodError",
     "ar1_loglik",
@@ -313,7 +316,16 @@ def ar1_loglik(
     vf = np.where(ok[..., None], vf, 1.0)
     ll = -0.5 * T * _LOG_2PI - T * np.log(ss) - 0.5 * (r[..., 0] / ss) ** 2
     if T > 1:
-        if index is None:
+        kernel = compiled_kernel(_ar1_sum_py, ("contract", "reassoc"))
+        if kernel is not None:  # one pass (bayesbeam.stats.likelihood_kernel)
+            K = phi.shape[-1]
+            idx = np.zeros(T - 1, np.int64) if index is None else index.astype(np.int64)
+            rb = np.broadcast_to(r, (*ok.shape, T))  # sigma, rho may widen the batch
+            q = kernel(np.ascontiguousarray(rb.reshape(-1, T)),
+                       np.ascontiguousarray(phi.reshape(-1, K)),
+                       np.ascontiguousarray((1.0 / vf).reshape(-1, K)), idx)
+            q = q.reshape(ok.shape)
+        elif index is None:
             e = r[..., 1:] - phi * r[..., :-1]
             q = np.sum(e * e, axis=-1) / vf[..., 0]
         else:
