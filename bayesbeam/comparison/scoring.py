@@ -41,7 +41,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -242,6 +242,7 @@ def evaluate(
     n_top: int = 64,
     outdir: str | Path | None = None,
     progress: bool | None = None,
+    log_prob: Callable[[np.ndarray], np.ndarray] | None = None,
     **settings: Any,
 ) -> ModelScore:
     """Fit one model (or take a fit) and compute its evidence and criteria.
@@ -279,6 +280,11 @@ def evaluate(
         Where the fit keeps its HDF5 checkpoint.
     progress : bool or None
         Sampler progress line.
+    log_prob : callable, optional
+        The problem's own ``log_prob`` as the bridge's proposal draws are to be
+        evaluated, e.g. a :class:`~bayesbeam.inference.parallel.ParallelLogProb` that
+        shares the calls with helper processes (the same values); default
+        ``problem.log_prob``.
     **settings
         Forward-model and sampler settings of a new fit (``n_elements``, ``initial``,
         ``nwalkers``, ``target_ess``, ``max_steps``, ``min_steps``), with the defaults
@@ -341,12 +347,15 @@ def evaluate(
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xB51D6E]))
         n_bridge = (chain.nsteps - chain.nsteps // 2) * chain.nwalkers
         n2 = n_bridge if n_proposal is None else max(2, min(int(n_proposal), n_bridge))
+        here = problem.n_calls
         try:
-            ev = bridge_sampling(chain.samples, problem.log_prob, chain.log_prob, rng=rng,
-                                 proposal=proposal, n_proposal=n2)
+            ev = bridge_sampling(chain.samples, log_prob or problem.log_prob, chain.log_prob,
+                                 rng=rng, proposal=proposal, n_proposal=n2)
         except EvidenceError as err:
             notes.append(f"bridge sampling failed: {err}")
             ev = Evidence(math.nan, math.nan, f"bridge-{proposal}", 0, converged=False)
+        # Calls that log_prob made in helper processes, which problem.n_calls misses.
+        helper_calls = ev.n_calls - (problem.n_calls - here)
         # Laplace at the best point known: the MAP, or a sample above it when the
         # optimiser stopped short (the Newton step in laplace_evidence does the rest).
         i_best = int(np.argmax(chain.flat_log_prob))
@@ -361,10 +370,15 @@ def evaluate(
                     "estimate: the MAP search stopped short (Laplace uses that sample)"
                 )
         laplace = math.nan
+        here = problem.n_calls
         try:
-            laplace = laplace_evidence(problem.log_prob, u_lap).log_z
+            lap = laplace_evidence(log_prob or problem.log_prob, u_lap)
+            laplace = lap.log_z
+            helper_calls += lap.n_calls - (problem.n_calls - here)
         except EvidenceError as err:  # includes HessianNotNegativeDefiniteError
             notes.append(f"Laplace evidence not available: {err}")
+        if log_prob is not None:
+            extra_calls += max(0, helper_calls)
         # Pointwise log-likelihood at thinned draws (walkers as chains for ArviZ).
         draws = result.thin(n_loo_draws).with_problem(problem)
         loglik = log_likelihood_group(problem, draws.chain.samples)

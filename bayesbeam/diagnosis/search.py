@@ -37,6 +37,7 @@ import numpy as np
 
 from bayesbeam.inference.coordinates import PREBURN_STEPS, SamplerCoordinates, sample_in_coordinates
 from bayesbeam.inference.optimum import SCREEN_POLISHED, best_map, chain_map
+from bayesbeam.inference.parallel import ParallelLogProb
 from bayesbeam.inference.settings import DIAGNOSIS_STOPPING
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import Model
@@ -285,8 +286,11 @@ class _Engine:
 
         res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes,
                       helpers=helpers)
-        return evaluate(self.trial, st.problem.model, seed=seed, result=res,
-                        problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]))
+        # The bridge's 10,000 proposal draws are shared with the helpers too.
+        with ParallelLogProb(st.problem.log_prob, helpers=helpers) as shared:
+            return evaluate(self.trial, st.problem.model, seed=seed, result=res,
+                            problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]),
+                            log_prob=shared)
 
     def _scored(self, st: _State, score: Any, notes: Sequence[str], seconds: float) -> None:
         """Record a state's score: its notes (sampler's, then the score's), time, log line.

@@ -189,16 +189,29 @@ def _as_chain(samples: Any) -> np.ndarray:
     return s
 
 
+#: Rows per call of the log density. A whole record's batch of 10,000 proposal draws
+#: would make every signal-sized temporary of the forward model ~1 GB (14,118 samples);
+#: in batches of this many it is ~60 MB, and a
+#: :class:`~bayesbeam.inference.parallel.ParallelLogProb` can share each call with its
+#: helper processes.
+EVAL_ROWS = 1024
+
+
 def _eval(log_prob: Callable[[np.ndarray], np.ndarray], u: np.ndarray, what: str) -> np.ndarray:
-    """Call the vectorised log density and check the result."""
-    out = np.asarray(log_prob(u), dtype=float)
-    if out.shape != (u.shape[0],):
-        out = out.reshape(-1)
-        if out.shape != (u.shape[0],):
-            raise EvidenceError(
-                f"log_prob must map an array (k, ndim) to (k,); got {np.shape(out)} for k="
-                f"{u.shape[0]}"
-            )
+    """Call the vectorised log density, :data:`EVAL_ROWS` rows at a time, and check it."""
+    parts = []
+    for i in range(0, max(u.shape[0], 1), EVAL_ROWS):
+        chunk = u[i : i + EVAL_ROWS]
+        out = np.asarray(log_prob(chunk), dtype=float)
+        if out.shape != (chunk.shape[0],):
+            out = out.reshape(-1)
+            if out.shape != (chunk.shape[0],):
+                raise EvidenceError(
+                    f"log_prob must map an array (k, ndim) to (k,); got {np.shape(out)} for "
+                    f"k={chunk.shape[0]}"
+                )
+        parts.append(out)
+    out = np.concatenate(parts)
     if np.any(np.isnan(out)):
         raise EvidenceError(
             f"log_prob returned NaN at {int(np.isnan(out).sum())} {what} points; it must return "

@@ -73,3 +73,27 @@ def test_the_scored_result_knows_its_problem(scores):
     score = by_model["viscous"]
     assert score.result.problem is score.draws.problem
     assert score.result.signal_unit == "m"
+
+
+def test_scores_with_the_density_shared_with_a_helper_equal_the_serial_ones(
+        gaussian_cloud_result, monkeypatch):
+    # The diagnosis evaluates the bridge's proposal draws and Laplace's stencil through
+    # a ParallelLogProb with one helper process: the same values bit for bit (its rows
+    # are the problem's own), and the calls made in the helper still counted.
+    from bayesbeam.inference import parallel as par
+    from bayesbeam.inference.parallel import ParallelLogProb
+
+    monkeypatch.setattr(par, "MIN_SECONDS", 0.0)  # start the helper on the first batch
+    trial = release_trial()
+    pr = Problem(trial, "viscous", n_elements=NE)
+    res = gaussian_cloud_result(pr, [E, GAMMA, 0.005, 1e-5], [1e-6, 1e-3, 1e-5, 1e-2],
+                                nsteps=20, nwalkers=8)
+    res = dataclasses.replace(res, settings={"n_elements": NE, "initial": "release"})
+    kw = {"result": res, "problem": pr, "n_loo_draws": 80, "n_proposal": 400}
+    serial = evaluate(trial, "viscous", **kw)
+    with ParallelLogProb(pr.log_prob, helpers=1) as shared:
+        split = evaluate(trial, "viscous", log_prob=shared, **kw)
+        assert shared.batches_split >= 1
+    assert split.evidence.log_z == serial.evidence.log_z
+    assert split.laplace_log_z == serial.laplace_log_z
+    assert split.n_calls == serial.n_calls

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from scipy import integrate, special, stats
 
+from bayesbeam.stats import evidence as evmod
 from bayesbeam.stats.evidence import (
     Evidence,
     EvidenceError,
@@ -181,6 +182,26 @@ def test_bridge_reuses_log_prob_and_accepts_flat_iid_samples():
     fresh = bridge_sampling(x, log_prob, rng=np.random.default_rng(0), n_proposal=3000)
     assert again.log_z == fresh.log_z  # same seed, same result
     assert "±" in str(ev) and ev.to_dict()["method"] == "bridge-normal"
+
+
+def test_bridge_calls_the_density_in_bounded_batches_with_the_same_result(monkeypatch):
+    # A whole record's 10,000 proposal draws in one call would make ~1 GB temporaries;
+    # the estimator calls log_prob at most EVAL_ROWS rows at a time (here 700, so that
+    # 3000 draws make five calls, the last one short), and a row-wise density gives the
+    # same estimate bit for bit as with one call.
+    log_prob, _, mean, cov = linear_gaussian(3, seed=3)
+    x = np.random.default_rng(0).multivariate_normal(mean, cov, size=4000)
+    whole = bridge_sampling(x, log_prob, rng=np.random.default_rng(1), n_proposal=3000)
+    sizes = []
+
+    def recorded(u):
+        sizes.append(len(u))
+        return log_prob(u)
+
+    monkeypatch.setattr(evmod, "EVAL_ROWS", 700)
+    batched = bridge_sampling(x, recorded, rng=np.random.default_rng(1), n_proposal=3000)
+    assert max(sizes) == 700 and sum(sizes) == batched.n_calls == whole.n_calls
+    assert batched.log_z == whole.log_z and batched.log_z_err == whole.log_z_err
 
 
 def test_bridge_input_errors():
