@@ -284,10 +284,11 @@ class _Engine:
                           helpers: int = 0) -> Any:
         from bayesbeam.comparison.scoring import evaluate
 
-        res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes,
-                      helpers=helpers)
-        # The bridge's 10,000 proposal draws are shared with the helpers too.
+        # One set of helper processes for the chains and then the bridge's 10,000
+        # proposal draws and Laplace's stencil.
         with ParallelLogProb(st.problem.log_prob, helpers=helpers) as shared:
+            res = _sample(st.problem, st.u, seed=seed, settings=self.sampler, notes=notes,
+                          log_prob=shared)
             return evaluate(self.trial, st.problem.model, seed=seed, result=res,
                             problem=st.problem, n_loo_draws=int(self.sampler["loo_draws"]),
                             log_prob=shared)
@@ -400,15 +401,16 @@ def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:
 
 
 def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any],
-            notes: list[str], helpers: int = 0) -> Any:
+            notes: list[str], log_prob: Any = None) -> Any:
     """Sample with emcee from a ball around the MAP (:func:`~.fit.walker_scale`).
 
     The ensemble moves in the coordinates of :class:`~.fit.SamplerCoordinates`, as in
     :func:`~.fit.fit`: the damping laws' log total first-mode damping and log ratios,
     where the viscous/KV trade-off that a record fixes only in total is a straight
-    valley instead of a curved one (unit Jacobian: the density is unchanged). ``helpers``
-    processes share each batch of the chains
-    (:class:`~bayesbeam.inference.parallel.ParallelLogProb`). The chain stops by
+    valley instead of a curved one (unit Jacobian: the density is unchanged).
+    ``log_prob`` is ``pb.log_prob`` as the chains evaluate it (default itself), e.g. a
+    :class:`~bayesbeam.inference.parallel.ParallelLogProb` whose helper processes share
+    each batch. The chain stops by
     :data:`~bayesbeam.inference.settings.DIAGNOSIS_STOPPING` (20 τ, τ settled to 5 %;
     a full fit: 50 τ, 2 %), where the diagnosis's ESS target is met several times over.
     """
@@ -420,13 +422,14 @@ def _sample(pb: Any, u_map: np.ndarray, *, seed: int, settings: Mapping[str, Any
     rng = np.random.default_rng(seed)
     ndim = pb.ndim
     nwalkers = walker_count(settings["nwalkers"], ndim)
-    u0 = init_walkers(pb.log_prob, u_map, nwalkers, rng=rng,
+    log_prob = pb.log_prob if log_prob is None else log_prob
+    u0 = init_walkers(log_prob, u_map, nwalkers, rng=rng,
                       scale=fitmod.walker_scale(pb, u_map))
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)
         chain = sample_in_coordinates(
-            pb.log_prob, SamplerCoordinates(pb, at=u_map), u0, seed=seed, helpers=helpers,
+            log_prob, SamplerCoordinates(pb, at=u_map), u0, seed=seed,
             max_steps=int(settings["max_steps"]), min_steps=int(settings["min_steps"]),
             target_ess=float(settings["target_ess"]), names=pb.names, progress=False,
             **DIAGNOSIS_STOPPING,
