@@ -376,7 +376,7 @@ def diagnose(
                            "loo_draws": loo_draws},
                   notes=notes, log=log)
     cur = eng.state(model)
-    eng.optimise(cur, eng.starts(cur, None))
+    eng.optimise(cur, eng.starts(cur, None), executor)
     if refine_mesh:
         cur = _converged_mesh(eng, cur, "mesh", log, refine=True)
     log(f"baseline {model.name}: max log L = {cur.ll:.2f}")
@@ -552,7 +552,7 @@ def _round(eng: _Engine, cur: _State, index: int, candidates: Sequence[str],
         warm = [[eng.states[scores[c]["model"]].x.get(n, cur.x[n]) for n in cur.problem.names]
                 for c in passing]
         before = cur.ll
-        eng.optimise(cur, np.array(warm))
+        eng.optimise(cur, np.array(warm), executor)
         if cur.ll > before + 1e-6:
             log(f"  current model improved by {cur.ll - before:.2f} from candidate MAPs")
             if not _chains_reached(cur):

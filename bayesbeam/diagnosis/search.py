@@ -61,6 +61,7 @@ class _State:
     lp: float = -math.inf
     ll: float = -math.inf
     laplace: float = math.nan
+    laplace_u: np.ndarray | None = None  # where ``laplace`` was computed
     score: Any = None  # scoring.ModelScore
     sig: Any = None  # signatures.Signatures
     seconds: float = 0.0
@@ -108,8 +109,12 @@ class _Engine:
             self._features = data_features(self.trial)
         return self._features
 
-    def optimise(self, st: _State, starts: np.ndarray) -> None:
-        """Improve the MAP of ``st`` from physical start points (rows of ``starts``)."""
+    def optimise(self, st: _State, starts: np.ndarray, executor: Any = None) -> None:
+        """Improve the MAP of ``st`` from physical start points (rows of ``starts``).
+
+        ``executor`` (anything with ``map``, e.g. a process pool) runs the local searches
+        from the starts side by side; the result is the same.
+        """
         from bayesbeam.inference import fit as fitmod
 
         pb = st.problem
@@ -133,7 +138,11 @@ class _Engine:
         # screen's MAP only ranks the candidates, and the one sampled gets its chains'
         # best point); the current MAP is among the starts, and local_map never returns
         # below its start.
-        u, v = best_map(pb, U, polished=SCREEN_POLISHED)
+        mapper = None
+        if executor is not None and len(U) > 1:
+            def mapper(fn: Callable[[Any], Any], rows: Any) -> Any:
+                return executor.map(_guarded_call, [(fn, r) for r in rows])
+        u, v = best_map(pb, U, polished=SCREEN_POLISHED, mapper=mapper)
         if u is not None and v > st.lp:
             st.u, st.lp = u, v
         if st.u is None or not np.isfinite(st.lp):
@@ -141,17 +150,25 @@ class _Engine:
                                 "density; check the trial's units and the priors")
         st.ll = float(pb.log_likelihood(st.u[None])[0])
 
-    def laplace(self, st: _State) -> None:
+    def laplace(self, st: _State, helpers: int = 0) -> None:
+        """Laplace log evidence at the state's MAP, once per MAP (``helpers`` share its stencil).
+
+        Recorded beside the screen (not used to decide); NaN where it does not apply.
+        """
         from bayesbeam.stats.evidence import EvidenceError, laplace_evidence
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf on a bound: reported
-            try:
-                st.laplace = laplace_evidence(st.problem.log_prob, st.u).log_z
-            except EvidenceError:
-                # MAP on a prior bound, or -H not (numerically) positive definite:
-                # Laplace is not applicable, recorded NaN.
-                st.laplace = math.nan
+        if st.laplace_u is not None and np.array_equal(st.laplace_u, st.u):
+            return
+        with ParallelLogProb(st.problem.log_prob, helpers=helpers) as lp:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf on a bound
+                try:
+                    st.laplace = laplace_evidence(lp, st.u).log_z
+                except EvidenceError:
+                    # MAP on a prior bound, or -H not (numerically) positive definite:
+                    # Laplace is not applicable, recorded NaN.
+                    st.laplace = math.nan
+        st.laplace_u = np.array(st.u, copy=True)
 
     def embed(self, st: _State, warm: Mapping[str, float]) -> None:
         """Take the current MAP, new parameters at neutral values, as ``st``'s MAP if better.
@@ -200,11 +217,14 @@ class _Engine:
 
     def optimise_many(self, pairs: Sequence[tuple[_State, np.ndarray]], executor: Any,
                       on_done: Callable[[int, float], None] | None = None) -> None:
-        """:meth:`optimise` several states from their starts, through ``executor``.
+        """:meth:`optimise` several states from their starts, then :meth:`laplace` each.
 
         Each state's MAP search depends on its problem, its starts and its current MAP
         only (no random numbers), so a worker that rebuilds the problem from
-        :meth:`config` finds bitwise the MAP this process would.
+        :meth:`config` finds bitwise the MAP (and the Laplace evidence) this process
+        would. The Laplace evidence is computed in the same job because its stencil
+        costs a search's worth on a whole record (~600 points per Hessian pass at 17
+        parameters) and, in this process after the screen, left the other cores idle.
 
         Parameters
         ----------
@@ -219,15 +239,18 @@ class _Engine:
             for i, (st, starts) in enumerate(pairs):
                 t0 = time.perf_counter()
                 self.optimise(st, starts)
+                seconds = time.perf_counter() - t0
+                self.laplace(st)
                 if on_done is not None:
-                    on_done(i, time.perf_counter() - t0)
+                    on_done(i, seconds)
             return
         jobs = [{"trial": self.trial, "engine": self.config(), "model": st.problem.model,
                  "n_elements": st.problem.n_elements, "starts": starts, "u": st.u,
                  "lp": st.lp} for st, starts in pairs]
-        for i, (u, lp, ll, seconds) in enumerate(executor.map(_optimise_job, jobs)):
+        for i, (u, lp, ll, laplace, seconds) in enumerate(executor.map(_optimise_job, jobs)):
             st = pairs[i][0]
             st.u, st.lp, st.ll = u, lp, ll
+            st.laplace, st.laplace_u = laplace, np.array(u, copy=True)
             if on_done is not None:
                 on_done(i, seconds)
 
@@ -342,12 +365,24 @@ def _worker_state(job: Mapping[str, Any]) -> tuple[_Engine, _State]:
     return eng, st
 
 
+def _guarded_call(item: tuple[Callable[[Any], Any], Any]) -> Any:
+    """Call ``fn(arg)`` for ``item = (fn, arg)``, an executor job (one BLAS thread)."""
+    from bayesbeam._util import job_guard
+
+    fn, arg = item
+    with job_guard():
+        return fn(arg)
+
+
 def _silent(line: str) -> None:
     """Log of a worker's engine: its lines are the caller's to write."""
 
 
-def _optimise_job(job: Mapping[str, Any]) -> tuple[np.ndarray | None, float, float, float]:
-    """Improve one model's MAP from its starts (an executor job of :meth:`_Engine.optimise_many`).
+def _optimise_job(job: Mapping[str, Any]
+                  ) -> tuple[np.ndarray | None, float, float, float, float]:
+    """Improve one model's MAP from its starts and take its Laplace evidence there.
+
+    An executor job of :meth:`_Engine.optimise_many`.
 
     Parameters
     ----------
@@ -361,8 +396,11 @@ def _optimise_job(job: Mapping[str, Any]) -> tuple[np.ndarray | None, float, flo
     u : ndarray, shape (ndim,)
     lp, ll : float
         Log posterior and log-likelihood at ``u``.
+    laplace : float
+        Laplace log evidence at ``u`` (:meth:`_Engine.laplace`; NaN where it does not
+        apply).
     seconds : float
-        Wall-clock time of the search.
+        Wall-clock time of the search (the Laplace evidence not included).
     """
     from bayesbeam._util import job_guard
 
@@ -371,7 +409,9 @@ def _optimise_job(job: Mapping[str, Any]) -> tuple[np.ndarray | None, float, flo
         eng, st = _worker_state(job)
         st.lp = float(job["lp"])
         eng.optimise(st, job["starts"])
-    return st.u, st.lp, st.ll, time.perf_counter() - t0
+        seconds = time.perf_counter() - t0
+        eng.laplace(st)
+    return st.u, st.lp, st.ll, st.laplace, seconds
 
 
 def _confirm_job(job: Mapping[str, Any]) -> tuple[Any, list[str], float]:

@@ -19,6 +19,7 @@ short (-5365.9 against -4950.9). Three measures, each cheap:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -241,7 +242,8 @@ def local_map(problem: Any, u0: np.ndarray, *, maxiter: int = 300,
 
 
 def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300,
-             polished: int = POLISHED) -> tuple[np.ndarray | None, float]:
+             polished: int = POLISHED, mapper: Callable[..., Any] | None = None,
+             ) -> tuple[np.ndarray | None, float]:
     """:func:`local_map` from every row of ``U``; the best ``polished``, Newton-polished.
 
     The best is then refined by alternating :func:`local_map` and :func:`newton_polish`
@@ -257,6 +259,11 @@ def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300,
     polished : int
         Distinct local results polished (:data:`FIRST_STEPS` steps each, then
         :func:`escape_bounds` where a polish ends on a prior bound).
+    mapper : callable, optional
+        Runs the local searches and the first polishes, as ``mapper(function,
+        items)`` (e.g. the ``map`` of a process pool, whose workers then need
+        ``problem`` pickled); default the built-in ``map``. Each is deterministic, so
+        the result does not depend on where it ran.
 
     Returns
     -------
@@ -265,7 +272,7 @@ def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300,
     log_prob : float
         ``-inf`` with ``u`` None.
     """
-    found = [local_map(problem, u0, maxiter=maxiter) for u0 in U]
+    found = list((mapper or map)(functools.partial(local_map, problem, maxiter=maxiter), U))
     found = sorted((f for f in found if np.isfinite(f[1])), key=lambda f: -f[1])
     if not found:
         return None, -np.inf
@@ -277,18 +284,16 @@ def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300,
     # A polish that ends on a prior bound is followed by escape_bounds. The best of them
     # is then polished to the end.
     bounds = map_bounds(problem)
-    best_u, best_v = None, -np.inf
-    kept: list[np.ndarray] = []
+    kept: list[tuple[np.ndarray, float]] = []
     for u, v in found:
         if len(kept) == polished:
             break
-        if any(np.allclose(u, k, rtol=0.0, atol=1e-8) for k in kept):
-            continue
-        kept.append(u)
-        u, v = newton_polish(problem.log_prob, u, v, bounds, iters=FIRST_STEPS)
-        u2, v2 = escape_bounds(problem, u, v, maxiter=maxiter)
-        if v2 > v:
-            u, v = newton_polish(problem.log_prob, u2, v2, bounds, iters=FIRST_STEPS)
+        if not any(np.allclose(u, k, rtol=0.0, atol=1e-8) for k, _ in kept):
+            kept.append((u, v))
+    # The first polishes are independent of each other: through the mapper too.
+    first = functools.partial(_first_polish, problem, maxiter=maxiter)
+    best_u, best_v = None, -np.inf
+    for u, v in (mapper or map)(first, kept):
         if v > best_v:
             best_u, best_v = u, v
     u, v = newton_polish(problem.log_prob, best_u, best_v, bounds)
@@ -297,6 +302,22 @@ def best_map(problem: Any, U: np.ndarray, *, maxiter: int = 300,
         if not v2 > v + REFINE_GAIN:
             return (u2, v2) if v2 > v else (u, v)
         u, v = newton_polish(problem.log_prob, u2, v2, bounds)
+    return u, v
+
+
+def _first_polish(problem: Any, found: tuple[np.ndarray, float], *, maxiter: int
+                  ) -> tuple[np.ndarray, float]:
+    """:data:`FIRST_STEPS` Newton steps from a local search's result, off a bound if need be.
+
+    One of :func:`best_map`'s first polishes (:func:`newton_polish`, then
+    :func:`escape_bounds` and a few steps more where the polish ends on a prior bound).
+    """
+    u, v = found
+    bounds = map_bounds(problem)
+    u, v = newton_polish(problem.log_prob, u, v, bounds, iters=FIRST_STEPS)
+    u2, v2 = escape_bounds(problem, u, v, maxiter=maxiter)
+    if v2 > v:
+        u, v = newton_polish(problem.log_prob, u2, v2, bounds, iters=FIRST_STEPS)
     return u, v
 
 

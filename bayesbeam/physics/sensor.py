@@ -13,8 +13,9 @@ each exact for what it covers:
   so the modes above the band are cut out of the system;
 * coupled sets (spatial hysteresis, non-proportional damping): the system restricted to
   the invariant subspace of the kept modes, from two block Riccati equations solved by
-  fixed-point iteration (:func:`_invariant_reduction`); a small real system of the kept
-  modes' dimension, no eigendecomposition;
+  iteration (:func:`_invariant_reduction`: mode-decoupled Sylvester steps where the
+  coupling is weak, else a plain fixed-point iteration); a small real system of the
+  kept modes' dimension, no eigendecomposition;
 * where that iteration does not converge (a mode too close to the band edge) or the
   band splits a mode's two roots: the spectral projection from left and right
   eigenvectors (:func:`_eigen_projection`).
@@ -27,7 +28,7 @@ import scipy.linalg as sla
 
 from bayesbeam._util import compiled_kernel
 from bayesbeam.physics.propagate import _pick_backend
-from bayesbeam.physics.sensor_kernel import _riccati_kernel_py
+from bayesbeam.physics.sensor_kernel import _decoupled_kernel_py, _riccati_kernel_py
 
 __all__ = ["band_limit", "check_bandwidth"]
 
@@ -189,6 +190,10 @@ def _eigen_projection(A: np.ndarray, z0: np.ndarray, w_band: float) -> np.ndarra
 
 #: Iterations and relative tolerance of the invariant-subspace iteration.
 MAX_ITERATIONS, TOLERANCE = 200, 1e-12
+#: Steps of the mode-decoupled iteration, and the slowest contraction per step it keeps
+#: going at (a step costs ~3x one of the plain iteration's, which contracts by 0.3-0.6:
+#: slower than 0.25 per step it would not pay).
+DECOUPLED_ITERATIONS, DECOUPLED_RATIO = 30, 0.25
 
 
 def _invariant_reduction(
@@ -204,8 +209,15 @@ def _invariant_reduction(
 
         X = A22⁻¹ (X A11 + X A12 X - A21),    Y = (A11 Y + A12 - Y A21 Y) A22⁻¹.
 
-    Both fixed-point iterations contract by about |λ|max(kept) / |λ|min(dropped) per
-    step (modes well inside and well outside the band: 0.3-0.6, 30-50 steps to 1e-12).
+    They are solved first by the mode-decoupled iteration
+    (:func:`~bayesbeam.physics.sensor_kernel._decoupled_kernel_py`), which contracts
+    by about |coupling| / |λ_dropped - λ_kept| per step: a point mass's rank-one
+    viscous coupling on a whole aluminium record, 3 steps. The sets where it contracts
+    slower than :data:`DECOUPLED_RATIO` take the plain fixed-point iterations above,
+    which contract by about |λ|max(kept) / |λ|min(dropped) per step whatever the
+    coupling (modes well inside and well outside the band: 0.3-0.6, 30-50 steps to
+    1e-12). Measured on Al 60 cm #1 (16 elements, 4 of 32 modes kept, a point mass):
+    the reduction 0.66 → 0.12 ms per set, the whole log density 1.40 → 0.74 ms.
     Writing ``z0 = [I; X] a + [Y; I] b`` gives ``a = (I - Y X)⁻¹ (z0_K - Y z0_D)``, and the
     kept part of the response is exactly that of the small real system
     ``a' = (A11 + A12 X) a``, ``y = (h_K + h_D X) a``: the projection of
@@ -251,16 +263,29 @@ def _invariant_reduction(
         if dm.size and np.all(np.diff(dm) == 1):  # the usual case: slices, no gather
             lo, hi = dm[0], dm[-1] + 1
             omega_d = np.diagonal(A[:, lo:hi, m + lo : m + hi], axis1=1, axis2=2)
-            P, wi = _inverse_blocks(omega_d, A[:, m + lo : m + hi, m + lo : m + hi])
+            neg_c = A[:, m + lo : m + hi, m + lo : m + hi]
         else:
-            P, wi = _inverse_blocks(A[:, dm, m + dm], A[:, (m + dm)[:, None], m + dm])
-        kernel = (compiled_kernel(_riccati_kernel_py, ("contract", "reassoc"))
-                  if _use_numba(backend) else None)
-        if kernel is not None:
-            X, Y, done = kernel(*(np.ascontiguousarray(v) for v in (P, wi, A11, A12, A21)),
-                                MAX_ITERATIONS, TOLERANCE)
+            omega_d, neg_c = A[:, dm, m + dm], A[:, (m + dm)[:, None], m + dm]
+        numba = _use_numba(backend)
+        # The mode-decoupled iteration first (a few steps where the coupling is weak
+        # against the gap between kept and dropped modes); the sets it leaves take the
+        # plain fixed-point iteration.
+        blocks = [np.ascontiguousarray(v) for v in (omega_d, neg_c, A11, A12, A21)]
+        if numba:
+            X, Y, done = compiled_kernel(_decoupled_kernel_py, ("contract", "reassoc"))(
+                *blocks, DECOUPLED_ITERATIONS, TOLERANCE, DECOUPLED_RATIO)
         else:
-            X, Y, done = _riccati_numpy(P, wi, A11, A12, A21)
+            X, Y, done = _decoupled_numpy(*blocks)
+        rest = np.flatnonzero(~done)
+        if rest.size:
+            P, wi = _inverse_blocks(omega_d[rest], neg_c[rest])
+            sub = [np.ascontiguousarray(v) for v in (P, wi, A11[rest], A12[rest], A21[rest])]
+            if numba:
+                out = compiled_kernel(_riccati_kernel_py, ("contract", "reassoc"))(
+                    *sub, MAX_ITERATIONS, TOLERANCE)
+            else:
+                out = _riccati_numpy(*sub)
+            X[rest], Y[rest], done[rest] = out
         ok &= done
         M = A11 + A12 @ X
         rhs = z0[:, K] - np.einsum("bij,bj->bi", Y, z0[:, D])
@@ -320,6 +345,76 @@ def _riccati_numpy(P: np.ndarray, wi: np.ndarray, A11: np.ndarray, A12: np.ndarr
         act = act[~conv & np.isfinite(dx) & np.isfinite(dy)]
         if act.size == 0:
             break
+    return X, Y, done
+
+
+def _decoupled_numpy(wd: np.ndarray, ndd: np.ndarray, A11: np.ndarray, A12: np.ndarray,
+                     A21: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Run the iteration of :func:`~bayesbeam.physics.sensor_kernel._decoupled_kernel_py`, batched.
+
+    The route without numba (the module's limits; same results to rounding). Each set
+    stops on its own, as in :func:`_riccati_numpy`, so that its result does not depend
+    on the batch it comes in.
+    """
+    B, r = wd.shape
+    n = A11.shape[1]
+    k = n // 2
+    jj, ii = np.arange(k), np.arange(r)
+    D11 = A11.copy()
+    for p, q in ((jj, jj), (jj, k + jj), (k + jj, jj), (k + jj, k + jj)):
+        D11[:, p, q] = 0.0
+    off = ndd.copy()
+    off[:, ii, ii] = 0.0
+    a2 = np.zeros((B, r, 1, 2, 2))  # dropped modes' own blocks
+    a2[..., 0, 0, 1], a2[..., 0, 1, 0] = wd, -wd
+    a2[..., 0, 1, 1] = ndd[:, ii, ii]
+    c2 = np.stack([np.stack([A11[:, jj, jj], A11[:, jj, k + jj]], -1),
+                   np.stack([A11[:, k + jj, jj], A11[:, k + jj, k + jj]], -1)], -2)[:, None]
+    eye = np.eye(2)
+
+    def op(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        # The 4x4 operator of  left z - z right  on a 2x2 block z (row-major entries).
+        t = (np.einsum("...pu,qv->...pquv", left, eye)
+             - np.einsum("pu,...vq->...pquv", eye, right))
+        return t.reshape(t.shape[:-4] + (4, 4))
+
+    X, Y = np.zeros((B, 2 * r, n)), np.zeros((B, n, 2 * r))
+    done = np.zeros(B, dtype=bool)
+    with np.errstate(all="ignore"):
+        MX = op(np.broadcast_to(a2, (B, r, k, 2, 2)), np.broadcast_to(c2, (B, r, k, 2, 2)))
+        MY = op(np.broadcast_to(c2, (B, r, k, 2, 2)), np.broadcast_to(a2, (B, r, k, 2, 2)))
+        good = (np.isfinite(MX).all(axis=(1, 2, 3, 4)) & np.isfinite(MY).all(axis=(1, 2, 3, 4))
+                & (np.abs(np.linalg.det(MX)) > 0).all(axis=(1, 2))
+                & (np.abs(np.linalg.det(MY)) > 0).all(axis=(1, 2)))
+        TX, TY = np.zeros_like(MX), np.zeros_like(MY)
+        TX[good], TY[good] = np.linalg.inv(MX[good]), np.linalg.inv(MY[good])
+        act = np.flatnonzero(good)
+        prev = np.full(B, np.inf)
+        for it in range(DECOUPLED_ITERATIONS):
+            Xa, Ya = X[act], Y[act]
+            rx = Xa @ (A12[act] @ Xa + D11[act]) - A21[act]
+            rx[:, r:] -= off[act] @ Xa[:, r:]
+            ry = (Ya @ A21[act] - D11[act]) @ Ya - A12[act]
+            ry[:, :, r:] += Ya[:, :, r:] @ off[act]
+            # Blocks: X rows (p, i), columns (q, j); Y rows (p, j), columns (q, i).
+            vx = rx.reshape(-1, 2, r, 2, k).transpose(0, 2, 4, 1, 3).reshape(-1, r, k, 4)
+            vy = ry.reshape(-1, 2, k, 2, r).transpose(0, 4, 2, 1, 3).reshape(-1, r, k, 4)
+            bx = np.einsum("brkpq,brkq->brkp", TX[act], vx).reshape(-1, r, k, 2, 2)
+            by = np.einsum("brkpq,brkq->brkp", TY[act], vy).reshape(-1, r, k, 2, 2)
+            Xn = bx.transpose(0, 3, 1, 4, 2).reshape(-1, 2 * r, n)
+            Yn = by.transpose(0, 3, 2, 4, 1).reshape(-1, n, 2 * r)
+            dx, dy = _rel_change(Xn, Xa), _rel_change(Yn, Ya)
+            X[act], Y[act] = Xn, Yn
+            conv = (dx <= TOLERANCE) & (dy <= TOLERANCE)
+            done[act[conv]] = True
+            d = np.maximum(dx, dy)
+            going = ~conv & np.isfinite(d)
+            if it >= 2:
+                going &= d <= DECOUPLED_RATIO * prev[act]
+            prev[act] = d
+            act = act[going]
+            if act.size == 0:
+                break
     return X, Y, done
 
 

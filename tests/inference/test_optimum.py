@@ -207,6 +207,25 @@ def test_best_map_polishes_and_escapes_a_start_stuck_on_a_bound():
     assert abs(u[0] - 0.6985) < 1e-3 and abs(v - 8.5038) < 1e-3
 
 
+def test_best_map_through_a_mapper_is_the_serial_search():
+    # Three starts: two end on the bound (the same point: polished once), one in the
+    # peak's basin; a mapper (e.g. a process pool's map) runs the three searches and the
+    # two distinct first polishes, and the answer is the serial one bit for bit.
+    starts = np.array([[0.05, 0.3], [0.1, -0.2], [0.69, 0.01]])
+    pb, _ = _bound_trap(peak=12.0)
+    u0, v0 = best_map(pb, starts)
+    seen = []
+
+    def mapper(fn, items):
+        items = list(items)
+        seen.append((fn.func.__name__, len(items)))
+        return [fn(x) for x in items]
+
+    u, v = best_map(pb, starts, mapper=mapper)
+    assert np.array_equal(u, u0) and v == v0
+    assert seen == [("local_map", 3), ("_first_polish", 2)]
+
+
 def test_chain_map_moves_to_a_higher_mode_the_chain_found_and_polishes_it():
     # Two Gaussian bumps in 2-D: a local mode at (-1, 0), log density 0, and the
     # global one at (2, 1), log density 3 (widths 0.3 and 0.5: the bumps do not overlap,

@@ -194,3 +194,105 @@ def test_invariant_reduction_routes_agree(backend, monkeypatch):
     for a, b in zip(out, ref, strict=True):
         assert a.shape == b.shape
         assert np.max(np.abs(a - b)) <= 1e-13 * np.max(np.abs(b))
+
+
+def _riccati_blocks(coupling, seed=5, B=3, m=8, kept=2):
+    """Modal state matrices of m modes (1-1e4 rad/s) with a symmetric damping whose
+    diagonal gives ζ = 1 % and whose off-diagonal part is ``coupling`` x sqrt(ω_i ω_j);
+    split at ``kept`` modes as sensor._invariant_reduction splits them."""
+    rng = np.random.default_rng(seed)
+    w = np.sort(rng.uniform(1.0, 1e4, size=(B, m)), axis=1)
+    w[:, kept:] = np.maximum(w[:, kept:], 2.0 * w[:, kept - 1 : kept])  # a gap at the band
+    G = rng.standard_normal((B, m, m))
+    off = coupling * 0.5 * (G + np.swapaxes(G, 1, 2)) * np.sqrt(w[:, :, None] * w[:, None, :])
+    idx = np.arange(m)
+    off[:, idx, idx] = 0.0
+    C = off + np.einsum("bi,ij->bij", 0.02 * w, np.eye(m))
+    A = propagate.state_matrix(w, C)
+    K = np.r_[np.arange(kept), m + np.arange(kept)]
+    D = np.r_[np.arange(kept, m), m + np.arange(kept, m)]
+    blk = {"A11": A[:, K[:, None], K], "A12": A[:, K[:, None], D], "A21": A[:, D[:, None], K],
+           "A22": A[:, D[:, None], D], "wd": w[:, kept:],
+           "ndd": A[:, (m + np.arange(kept, m))[:, None], m + np.arange(kept, m)]}
+    return A, {k: np.ascontiguousarray(v) for k, v in blk.items()}
+
+
+@pytest.mark.parametrize("route", ["kernel", "numpy"])
+def test_decoupled_iteration_solves_the_riccati_equations(route):
+    # Weak coupling (off-diagonal damping 1e-3 of the frequencies): the mode-decoupled
+    # iteration converges, and its X, Y satisfy both Riccati equations to round-off of
+    # their largest term (checked by substitution, not against another solver) and agree
+    # with the plain fixed-point iteration's to the tolerance both stop at.
+    from bayesbeam.physics.sensor import (
+        DECOUPLED_ITERATIONS,
+        DECOUPLED_RATIO,
+        MAX_ITERATIONS,
+        TOLERANCE,
+        _decoupled_numpy,
+        _inverse_blocks,
+    )
+    from bayesbeam.physics.sensor_kernel import _decoupled_kernel_py, _riccati_kernel_py
+
+    _, b = _riccati_blocks(1e-3)
+    args = (b["wd"], b["ndd"], b["A11"], b["A12"], b["A21"])
+    if route == "kernel":  # uncompiled: the kernel's own logic
+        X, Y, done = _decoupled_kernel_py(*args, DECOUPLED_ITERATIONS, TOLERANCE,
+                                          DECOUPLED_RATIO)
+    else:
+        X, Y, done = _decoupled_numpy(*args)
+    assert done.all()
+    A11, A12, A21, A22 = b["A11"], b["A12"], b["A21"], b["A22"]
+    rx = A22 @ X - X @ A11 - X @ A12 @ X + A21
+    ry = A11 @ Y - Y @ A22 - Y @ A21 @ Y + A12
+    scale_x = np.abs(A22 @ X).max() + np.abs(A21).max()
+    scale_y = np.abs(Y @ A22).max() + np.abs(A12).max()
+    # Round-off of length-2m dot products of the largest terms, with the 1e-12 stop.
+    assert np.abs(rx).max() < 1e-11 * scale_x
+    assert np.abs(ry).max() < 1e-11 * scale_y
+    P, wi = _inverse_blocks(b["wd"], b["ndd"])
+    X0, Y0, done0 = _riccati_kernel_py(P, wi, A11, A12, A21, MAX_ITERATIONS, TOLERANCE)
+    assert done0.all()
+    assert np.abs(X - X0).max() < 1e-10 * np.abs(X0).max()
+    assert np.abs(Y - Y0).max() < 1e-10 * np.abs(Y0).max()
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+@pytest.mark.parametrize("route", ["kernel", "numpy"])
+def test_strong_coupling_leaves_the_plain_iteration_to_band_limit(route, seed, monkeypatch):
+    # Off-diagonal damping of 0.6 of the frequencies: a decoupled step shrinks the
+    # change by less than DECOUPLED_RATIO, so that iteration gives up (done False) and
+    # band_limit's result comes from the plain iteration: still the spectral projection
+    # of the eigenvector route (_eigen_projection), to 1e-9 of the signal.
+    import bayesbeam.physics.sensor as sensor_mod
+    from bayesbeam.physics.sensor import (
+        DECOUPLED_ITERATIONS,
+        DECOUPLED_RATIO,
+        TOLERANCE,
+        _decoupled_numpy,
+    )
+    from bayesbeam.physics.sensor_kernel import _decoupled_kernel_py
+
+    m = 6
+    A, b = _riccati_blocks(0.6, seed=seed, B=1, m=m)
+    args = (b["wd"], b["ndd"], b["A11"], b["A12"], b["A21"])
+    if route == "kernel":
+        _, _, done = _decoupled_kernel_py(*args, DECOUPLED_ITERATIONS, TOLERANCE,
+                                          DECOUPLED_RATIO)
+        monkeypatch.setattr(sensor_mod, "compiled_kernel", lambda kernel, *flags: kernel)
+        monkeypatch.setattr(sensor_mod, "_use_numba", lambda backend: True)
+        backend = "numba"
+    else:
+        _, _, done = _decoupled_numpy(*args)
+        backend = "numpy"
+    assert not done.any()
+    w = np.diagonal(A[:, :m, m:], axis1=1, axis2=2)
+    C = -A[:, m:, m:]
+    wb = 0.5 * (w[0, 1] + w[0, 2])  # between modes 2 and 3
+    assert (np.abs(np.linalg.eigvals(A[0])) <= wb).sum() == 4  # two modes' roots in band
+    rng = np.random.default_rng(9)
+    z0, h = rng.standard_normal((1, 2 * m)), rng.standard_normal((1, 2 * m))
+    Ar, zr, hr = band_limit(A.copy(), z0.copy(), h.copy(), w, C, wb, backend=backend)
+    assert Ar.shape[1] == 4  # reduced (by the plain iteration), not projected in full
+    ref = _eigen_projection(A[0], z0[0], wb)
+    # The reduced system's output at t = 0 is that of the projected state: y = h P z0.
+    assert abs(hr[0] @ zr[0] - h[0] @ ref) < 1e-9 * np.abs(h[0]).sum() * np.abs(ref).max()
