@@ -150,8 +150,8 @@ class _Engine:
                                 "density; check the trial's units and the priors")
         st.ll = float(pb.log_likelihood(st.u[None])[0])
 
-    def laplace(self, st: _State, helpers: int = 0) -> None:
-        """Laplace log evidence at the state's MAP, once per MAP (``helpers`` share its stencil).
+    def laplace(self, st: _State) -> None:
+        """Laplace log evidence at the state's MAP, once per MAP.
 
         Recorded beside the screen (not used to decide); NaN where it does not apply.
         """
@@ -159,15 +159,14 @@ class _Engine:
 
         if st.laplace_u is not None and np.array_equal(st.laplace_u, st.u):
             return
-        with ParallelLogProb(st.problem.log_prob, helpers=helpers) as lp:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf on a bound
-                try:
-                    st.laplace = laplace_evidence(lp, st.u).log_z
-                except EvidenceError:
-                    # MAP on a prior bound, or -H not (numerically) positive definite:
-                    # Laplace is not applicable, recorded NaN.
-                    st.laplace = math.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf on a bound: reported
+            try:
+                st.laplace = laplace_evidence(st.problem.log_prob, st.u).log_z
+            except EvidenceError:
+                # MAP on a prior bound, or -H not (numerically) positive definite:
+                # Laplace is not applicable, recorded NaN.
+                st.laplace = math.nan
         st.laplace_u = np.array(st.u, copy=True)
 
     def embed(self, st: _State, warm: Mapping[str, float]) -> None:

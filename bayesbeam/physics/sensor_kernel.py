@@ -157,9 +157,10 @@ def _decoupled_kernel_py(wd, ndd, A11, A12, A21, max_iter, tol, ratio):
     contracts by about |coupling| / |λ_dropped - λ_kept| per step (e.g. a point mass's
     rank-one viscous coupling: ~1e-6 on the aluminium records, 3 steps to 1e-12),
     where :func:`_riccati_kernel_py` contracts by |λ|max(kept) / |λ|min(dropped) whatever
-    the coupling (0.3-0.6: 30-50 steps). Each step costs ~3x one of that iteration's, so
-    a set gives up (``done`` False, for that iteration to take over) once a step shrinks
-    the change by less than ``ratio`` (from its third step), or on a singular pair.
+    the coupling (0.3-0.6: 30-50 steps). A step costs up to ~3x one of that
+    iteration's (:data:`bayesbeam.physics.sensor.DECOUPLED_RATIO`), so a set gives up
+    (``done`` False, for that iteration to take over) once a step shrinks the change
+    by less than ``ratio`` (from its third step), or on a singular pair.
 
     Parameters
     ----------

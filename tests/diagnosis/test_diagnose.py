@@ -53,6 +53,7 @@ A KV cause may list ``sh`` as equivalent: a narrow-kernel SH is exactly KV
 
 import argparse
 import json
+import math
 
 import numpy as np
 import pytest
@@ -519,6 +520,31 @@ def test_physics_starts_move_the_added_cause_only(cause):
     rows = eng.starts(st, None)
     lo = st.problem.priors[cause].bounds[0]
     assert np.max(rows[:, names.index(cause)]) > 1e4 * lo  # prior ends: ζ1 1e-7 .. 0.05
+
+
+def test_laplace_is_computed_once_per_map():
+    # The Laplace evidence is recorded for the current model every round and comes back
+    # from the screen jobs for the candidates: computed again only where the MAP moved.
+    from bayesbeam.diagnosis.search import _Engine
+    from bayesbeam.physics.models import parse_model
+    from bayesbeam.stats.evidence import laplace_evidence
+
+    trial, initial = make_trial("viscous+kv", BASE, "displacement", duration=1.0, fs=256.0)
+    eng = _Engine(trial, seed=0, n_elements=4, initial=initial, priors=None, sampler={},
+                  notes=[], log=lambda s: None)
+    st = eng.state(parse_model("viscous+kv"))
+    eng.optimise(st, eng.starts(st, None))
+    n0 = st.problem.n_calls
+    eng.laplace(st)
+    n1 = st.problem.n_calls
+    assert n1 > n0 and math.isfinite(st.laplace)
+    assert st.laplace == laplace_evidence(st.problem.log_prob, st.u).log_z
+    n2 = st.problem.n_calls
+    eng.laplace(st)  # the same MAP: no call
+    assert st.problem.n_calls == n2
+    st.u = st.u + 1e-6 * np.abs(st.u)  # a moved MAP: computed again
+    eng.laplace(st)
+    assert st.problem.n_calls > n2
 
 
 @pytest.mark.slow
