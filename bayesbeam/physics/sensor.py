@@ -384,8 +384,7 @@ def _decoupled_numpy(wd: np.ndarray, ndd: np.ndarray, A11: np.ndarray, A12: np.n
     X, Y = np.zeros((B, 2 * r, n)), np.zeros((B, n, 2 * r))
     done = np.zeros(B, dtype=bool)
     with np.errstate(all="ignore"):
-        MX = op(np.broadcast_to(a2, (B, r, k, 2, 2)), np.broadcast_to(c2, (B, r, k, 2, 2)))
-        MY = op(np.broadcast_to(c2, (B, r, k, 2, 2)), np.broadcast_to(a2, (B, r, k, 2, 2)))
+        MX, MY = op(a2, c2), op(c2, a2)  # (B, r, k, 4, 4): the two terms broadcast
         good = (np.isfinite(MX).all(axis=(1, 2, 3, 4)) & np.isfinite(MY).all(axis=(1, 2, 3, 4))
                 & (np.abs(np.linalg.det(MX)) > 0).all(axis=(1, 2))
                 & (np.abs(np.linalg.det(MY)) > 0).all(axis=(1, 2)))
