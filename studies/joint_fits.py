@@ -33,7 +33,8 @@ Two parts (``--part``):
     joint fit minus the sum of the single records' (does one mass at one place serve
     them all?).
 ``marginal``
-    One trial (``--trial``; default: the first of ``bench``'s releases), one model:
+    One trial (``--trial``; default: the first of ``bench``'s releases, with a narrow
+    spatial-hysteresis kernel for an ``sh`` model), one model:
     the single fit (sigma and w0 sampled) against the
     joint fit of that one trial (sigma and w0 integrated out in closed form), a few
     seeds each: bulk ESS per second of E and the damping parameters, and their means
@@ -43,7 +44,8 @@ Run from the repository root, e.g.::
 
     python studies/joint_fits.py --part shipped --beams beam2 --out studies/figures
     python studies/joint_fits.py --part real --length 30,40,50,60 --per-length 1
-    python studies/joint_fits.py --part marginal --seeds 3
+    python studies/joint_fits.py --part marginal --seeds 5
+    python studies/joint_fits.py --part marginal --model viscous+sh --seeds 3
     python studies/joint_fits.py --part bench --model viscous+kv
 
 Prints a markdown table and writes ``joint_<part>.json`` into ``--out``.
@@ -261,7 +263,14 @@ def _bench_trials(model: str, n: int) -> list:
     from bayesbeam.trials.synthetic import simulate_trial
 
     beam = Beam.rectangular(0.3048, 0.127, 0.72e-3, 0.021, E=6.2e10)
-    params = {"gamma": 0.2, "c_d": 2e6} if "kv" in model else {"gamma": 0.2}
+    params = {"gamma": 0.2}
+    if "kv" in model:
+        params["c_d"] = 2e6
+    if "sh" in model:
+        # A narrow kernel: ζ1 ≈ a b² ω1 / (4 E I) = 1 % (physics.md §2, bench_params).
+        w1 = 1.875104069**2 * np.sqrt(beam.E * beam.I / (beam.rhoA * beam.length**4))
+        params["b"] = 0.01
+        params["a"] = 4 * beam.E * beam.I * 0.01 / (w1 * params["b"] ** 2)
     return [simulate_trial(beam, model, params, duration=5.0, dt=0.003906,
                            tip_deflection=0.004 + 0.001 * i, noise_sd=2e-5, seed=i,
                            n_elements=24, name=f"rel{i + 1}") for i in range(n)]

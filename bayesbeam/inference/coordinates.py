@@ -17,7 +17,6 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.special import logsumexp
 
 from bayesbeam.inference.parallel import ParallelLogProb
 from bayesbeam.inference.problem import Problem
@@ -261,7 +260,9 @@ class SamplerCoordinates:
         """
         g = self.group
         if g.size:
-            V[..., g[0]] = logsumexp(U[..., g] + self._scales(U, V), axis=-1)
+            # numpy's ufunc reduction: scipy's logsumexp cost ~0.2 ms per call here, ~12 %
+            # of a viscous+kv fit's sampling on 1280 samples.
+            V[..., g[0]] = np.logaddexp.reduce(U[..., g] + self._scales(U, V), axis=-1)
             V[..., g[1:]] = U[..., g[1:]] - U[..., g[:1]]
 
     def laws_to_u(self, V: np.ndarray, U: np.ndarray) -> None:
@@ -273,8 +274,8 @@ class SamplerCoordinates:
         if g.size:
             w = np.zeros(V.shape[:-1] + (g.size,))
             w[..., 1:] = V[..., g[1:]]
-            U[..., g] = w + (V[..., g[0]] - logsumexp(w + self._scales(U, V), axis=-1)
-                             )[..., None]
+            U[..., g] = w + (V[..., g[0]]
+                             - np.logaddexp.reduce(w + self._scales(U, V), axis=-1))[..., None]
 
     @property
     def identity(self) -> bool:

@@ -17,6 +17,7 @@ from scipy import integrate
 
 from bayesbeam.stats.likelihood import LikelihoodError, ar1_loglik, iid_loglik
 from bayesbeam.stats.marginal import (
+    GRAM_COND,
     ar1_whiten,
     box_margin,
     draw_conditional,
@@ -399,6 +400,64 @@ def test_rank_deficient_basis_is_minus_inf():
     B2 = B[2:].copy()
     B2[..., 1] *= 1e-12
     assert np.isfinite(marginal_loglik(y, B2, 0.1, 10.0)[0])
+
+
+def _lstsq_reference(y, Bk):
+    """alpha, S and log|B^T B| of one set from numpy's SVD-based lstsq.
+
+    On unit-norm columns (and unscaled after), so that the reference's own error is
+    that of the basis's shape, not of its units.
+    """
+    scale = np.linalg.norm(Bk, axis=0)
+    alpha = np.linalg.lstsq(Bk / scale, y, rcond=None)[0] / scale
+    # log|B^T B| from the singular values of B itself (forming B^T B would square cond).
+    logdet = 2.0 * np.sum(np.log(np.linalg.svd(Bk, compute_uv=False)))
+    return alpha, float(np.sum((y - Bk @ alpha) ** 2)), logdet
+
+
+@pytest.mark.parametrize("p", [1, 2, 4])
+def test_cholesky_and_qr_routes_agree(p, monkeypatch):
+    """The normal-equations route (well-conditioned sets) is the QR route to rounding.
+
+    Both against numpy's lstsq; 1e-10 relative is ~1e6 units of rounding on these
+    condition numbers (<= 1e3), far below any use of the result.
+    """
+    rng = np.random.default_rng(40 + p)
+    B = rng.normal(size=(5, 300, p)) * np.logspace(-6, 3, p)  # columns of any unit
+    y = B[0] @ rng.normal(size=p) + 0.1 * rng.normal(size=300)
+    fast = linear_fit(y, B)
+    monkeypatch.setattr("bayesbeam.stats.marginal.GRAM_COND", 1.0)  # every set by QR
+    qr = linear_fit(y, B)
+    assert fast.identified.all() and qr.identified.all()
+    # Amplitudes compared per unit-norm column (the units span 1e-6 to 1e3 here).
+    for a, b in ((fast.alpha_hat * fast.scale, qr.alpha_hat * qr.scale), (fast.rss, qr.rss),
+                 (fast.log_det_gram, qr.log_det_gram), (fast.r_factor, qr.r_factor),
+                 (fast.inv_r(), qr.inv_r())):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * np.max(np.abs(b)))
+    for i in range(5):
+        alpha, S, logdet = _lstsq_reference(y, B[i])
+        np.testing.assert_allclose(fast.alpha_hat[i] * fast.scale[i],
+                                   alpha * fast.scale[i], rtol=1e-10, atol=1e-12)
+        assert fast.rss[i] == pytest.approx(S, rel=1e-10)
+        assert fast.log_det_gram[i] == pytest.approx(logdet, abs=1e-9)
+
+
+def test_ill_conditioned_basis_takes_the_qr_route():
+    """Nearly collinear columns (cond(G) ~ 1e12 > GRAM_COND): QR, still accurate."""
+    rng = np.random.default_rng(47)
+    x = rng.normal(size=(400, 2))
+    B = np.stack([x[:, 0], x[:, 0] + 1e-6 * x[:, 1]], axis=-1)[None]
+    y = B[0] @ np.array([1.0, -0.5]) + 1e-3 * rng.normal(size=400)
+    Bs = B[0] / np.linalg.norm(B[0], axis=0)
+    assert np.linalg.cond(Bs.T @ Bs) > 1e3 * GRAM_COND  # the case is what it claims
+    fit = linear_fit(y, B)
+    alpha, S, logdet = _lstsq_reference(y, B[0])
+    assert fit.identified[0]
+    # lstsq's own error on alpha is ~cond(B) eps ~ 1e-10 of |alpha| here.
+    np.testing.assert_allclose(fit.alpha_hat[0], alpha, rtol=1e-7)
+    assert fit.rss[0] == pytest.approx(S, rel=1e-8)
+    assert fit.log_det_gram[0] == pytest.approx(logdet, abs=1e-4)
+    assert np.all(np.diagonal(fit.r_factor[0]) > 0)
 
 
 def test_box_margin():
