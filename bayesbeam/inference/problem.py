@@ -555,6 +555,26 @@ class Problem:
             y = y + X[:, self._lay.offset][:, None]
         return Response(y, res.valid)
 
+    def predict_basis(self, X: np.ndarray, columns: list[int]) -> Response:
+        """Signal's response to each initial-condition amplitude alone, shape (k, T, p).
+
+        Parameters
+        ----------
+        X : ndarray, shape (k, ndim)
+            Physical sampled values; the amplitude columns' values are ignored.
+        columns : list of int
+            Columns of :attr:`names` that are amplitudes (:func:`amplitude_names`).
+
+        Returns
+        -------
+        Response
+            :meth:`~bayesbeam.physics.forward.Forward.simulate_basis`'s: ``y`` (k, T, p)
+            without the offset (the signal is ``offset + y @ amplitudes``).
+        """
+        X = np.atleast_2d(X)
+        fwd = self._lay.fwd.tolist()
+        return self.forward.simulate_basis(self.forward_params(X), [fwd.index(j) for j in columns])
+
     def _pointwise(self, X: np.ndarray, valid: np.ndarray, y: np.ndarray) -> np.ndarray:
         r = self.data[None, :] - y
         sigma = X[:, self._lay.sigma]

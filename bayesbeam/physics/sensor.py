@@ -67,8 +67,9 @@ def band_limit(
     ----------
     A : ndarray, shape (B, 2m, 2m)
         Modal state matrices, state ``z = [Ω q; q']``.
-    z0 : ndarray, shape (B, 2m)
-        Initial states.
+    z0 : ndarray, shape (B, 2m) or (B, 2m, p)
+        Initial states; with a last axis, ``p`` initial states of each system (the
+        responses to each of ``p`` linear amplitudes), reduced with one reduction.
     h : ndarray, shape (B, 2m)
         Output rows.
     omega : ndarray, shape (B, m)
@@ -93,6 +94,7 @@ def band_limit(
         Rows of sets with non-finite input are returned unchanged (the caller flags them).
     """
     B, m = omega.shape
+    cols = (1,) * (z0.ndim - 2)  # trailing axis of several initial states, if any
     diag = np.diagonal(C, axis1=1, axis2=2)
     # Mode k's two roots: -c/2 ± sqrt(c²/4 - ω²); underdamped roots have |λ| = ω.
     disc = 0.25 * diag**2 - omega**2
@@ -116,11 +118,11 @@ def band_limit(
     cross = keep[:, :upto, None] & ~keep[:, None, :]
     coupling = np.max(np.where(cross, ratio, 0.0), axis=(1, 2), initial=0.0)
     classical = (coupling <= 1e-10) & ~((slow <= w_band) & ~keep).any(axis=1)
-    finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(z0).all(axis=1)
+    finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(z0).reshape(B, -1).all(axis=1)
     z0 = z0.copy()
     if np.all(classical | ~finite):
-        z0[:, :m] = np.where(keep, z0[:, :m], 0.0)
-        z0[:, m:] = np.where(keep, z0[:, m:], 0.0)
+        z0[:, :m] = np.where(keep.reshape(B, m, *cols), z0[:, :m], 0.0)
+        z0[:, m:] = np.where(keep.reshape(B, m, *cols), z0[:, m:], 0.0)
         k = int(np.max(np.count_nonzero(keep & finite[:, None], axis=1), initial=0))
         k = max(k, 1)  # a set with no mode in band keeps a zero state of one mode
         sel = np.r_[0:k, m : m + k]
@@ -152,10 +154,10 @@ def band_limit(
     if np.all(reducible):
         k = max([int(np.count_nonzero(keep[b])) for b in np.flatnonzero(finite)] + [1])
         d = 2 * k
-        Ar, zr, hr = np.zeros((B, d, d)), np.zeros((B, d)), np.zeros((B, d))
+        Ar, zr, hr = np.zeros((B, d, d)), np.zeros((B, d, *z0.shape[2:])), np.zeros((B, d))
         cls = classical | ~finite
         sel = np.r_[0:k, m : m + k]
-        zc = np.where(np.concatenate([keep, keep], axis=1), z0, 0.0)
+        zc = np.where(np.concatenate([keep, keep], axis=1).reshape(B, 2 * m, *cols), z0, 0.0)
         Ar[cls], zr[cls], hr[cls] = A[cls][:, sel][:, :, sel], zc[cls][:, sel], h[cls][:, sel]
         for b, (M, a, g, _) in red.items():
             n = M.shape[0]
@@ -164,8 +166,8 @@ def band_limit(
         return Ar, zr, hr
     for b in np.flatnonzero(finite):
         if classical[b]:
-            z0[b, :m] = np.where(keep[b], z0[b, :m], 0.0)
-            z0[b, m:] = np.where(keep[b], z0[b, m:], 0.0)
+            z0[b, :m] = np.where(keep[b].reshape(m, *cols), z0[b, :m], 0.0)
+            z0[b, m:] = np.where(keep[b].reshape(m, *cols), z0[b, m:], 0.0)
         elif b in red:
             z0[b] = red[b][3]
         else:
@@ -184,7 +186,8 @@ def _eigen_projection(A: np.ndarray, z0: np.ndarray, w_band: float) -> np.ndarra
     lam, Wl, Vr = sla.eig(A, left=True, right=True)
     inband = np.abs(lam) <= w_band
     Wk, Vk = Wl[:, inband], Vr[:, inband]
-    coef = (Wk.conj().T @ z0) / np.einsum("ik,ik->k", Wk.conj(), Vk)
+    norm = np.einsum("ik,ik->k", Wk.conj(), Vk)
+    coef = (Wk.conj().T @ z0) / norm.reshape(norm.shape + (1,) * (z0.ndim - 1))
     return (Vk @ coef).real
 
 
@@ -232,7 +235,8 @@ def _invariant_reduction(
     ----------
     A : ndarray, shape (B, s, s)
         Modal state matrices (:func:`bayesbeam.physics.propagate.state_matrix` form).
-    z0, h : ndarray, shape (B, s)
+    z0 : ndarray, shape (B, s) or (B, s, p)
+    h : ndarray, shape (B, s)
     K : ndarray of int, shape (2k,)
         Kept state coordinates (``[Ω q; q']`` of the kept modes).
     w_band : float
@@ -243,9 +247,9 @@ def _invariant_reduction(
     Returns
     -------
     M : ndarray, shape (B, 2k, 2k)
-    a, g : ndarray, shape (B, 2k)
+    a, g : ndarray, shape (B, 2k) (``a``: (B, 2k, p) for several initial states)
         Reduced initial state and output row.
-    Pz0 : ndarray, shape (B, s)
+    Pz0 : ndarray, shape (B, s) or (B, s, p)
         The projected full state (for the full-size route).
     ok : ndarray of bool, shape (B,)
         Converged, finite, and every eigenvalue of M inside the band (else the set
@@ -291,19 +295,23 @@ def _invariant_reduction(
             X[rest], Y[rest], done[rest] = out
         ok &= done
         M = A11 + A12 @ X
-        rhs = z0[:, K] - np.einsum("bij,bj->bi", Y, z0[:, D])
+        # z0 as columns (B, s, p): one or several initial states of each set.
+        Z = z0 if z0.ndim == 3 else z0[..., None]
+        rhs = Z[:, K] - Y @ Z[:, D]
         IYX = np.eye(n) - Y @ X
         # A set that did not converge (it diverged: huge or non-finite blocks, where
         # I - Y X can be exactly singular) is flagged and solved as the identity, so
         # that LAPACK does not stop the batch.
-        ok &= np.isfinite(IYX).all(axis=(1, 2)) & np.isfinite(rhs).all(axis=1)
+        ok &= np.isfinite(IYX).all(axis=(1, 2)) & np.isfinite(rhs).all(axis=(1, 2))
         IYX[~ok] = np.eye(n)
-        a = np.linalg.solve(IYX, np.where(ok[:, None], rhs, 0.0)[..., None])[..., 0]
+        a = np.linalg.solve(IYX, np.where(ok[:, None, None], rhs, 0.0))
         g = h[:, K] + np.einsum("bj,bjk->bk", h[:, D], X)
-        Pz0 = np.zeros_like(z0)
+        Pz0 = np.zeros_like(Z)
         Pz0[:, K] = a
-        Pz0[:, D] = np.einsum("bij,bj->bi", X, a)
-        ok &= np.isfinite(M).all(axis=(1, 2)) & np.isfinite(a).all(axis=1)
+        Pz0[:, D] = X @ a
+        ok &= np.isfinite(M).all(axis=(1, 2)) & np.isfinite(a).all(axis=(1, 2))
+        if z0.ndim == 2:
+            a, Pz0 = a[..., 0], Pz0[..., 0]
         ok &= np.isfinite(g).all(axis=1)
         lam = np.linalg.eigvals(np.where(ok[:, None, None], M, 0.0))
     ok &= (np.abs(lam) <= w_band).all(axis=1)
