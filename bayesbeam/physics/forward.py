@@ -797,6 +797,7 @@ class Forward:
             yy, ok = self._propagate(np.repeat(A, p, axis=0),
                                      np.moveaxis(Z0, -1, 1).reshape(n * p, d),
                                      np.repeat(h, p, axis=0))
+        self.last_path = "full"
         ok = ok.reshape(n, p).all(axis=1)
         y[idx[ok]] = np.moveaxis(yy.reshape(n, p, T)[ok], 1, -1)
         valid[idx[~ok]] = False

@@ -101,8 +101,9 @@ _TINY = 1e-250
 _NARROW = 1e-3
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(32)
 #: Largest condition number of the column-scaled Gram matrix that :func:`linear_fit`
-#: solves by Cholesky (a few hundred flops per set against a batched QR of the whole
-#: ``(T, p)`` basis: 4x faster at one amplitude and 1280 samples); above it, the QR.
+#: solves by Cholesky (the products B^T B and B^T y and a p x p factorisation, against a
+#: batched QR of the whole (T, p) basis: 5x faster at 3 amplitudes and 1280 samples, 9x
+#: at 4 and 10,000, about the same at one); above it, the QR.
 GRAM_COND = 1e6
 
 
