@@ -773,10 +773,12 @@ class Forward:
             th[:, columns] = 0.0
             th[:, j] = 1.0
             probes.append(th)
-        if p <= 1 or self._path_for() == "closed-form":
+        if p == 0:
+            return Response(np.zeros((B, T, 0)), self.check(theta))
+        if p == 1 or self._path_for() == "closed-form":
             res = [self.simulate(th) for th in probes]
-            y = np.stack([r.y for r in res], axis=-1) if p else np.zeros((B, T, 0))
-            return Response(y, np.logical_and.reduce([r.valid for r in res]))
+            return Response(np.stack([r.y for r in res], axis=-1),
+                            np.logical_and.reduce([r.valid for r in res]))
         valid = np.logical_and.reduce([self.check(th) for th in probes])
         y = np.zeros((B, T, p))
         idx = np.flatnonzero(valid)

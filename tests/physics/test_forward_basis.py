@@ -99,3 +99,10 @@ def test_a_column_that_is_not_an_amplitude_is_refused():
     fwd = Forward(_beam(), "viscous+kv", np.arange(64) / 512.0, n_elements=6)
     with pytest.raises(ForwardError, match="not amplitudes"):
         fwd.simulate_basis(np.ones((1, len(fwd.param_names))), [0])
+
+
+def test_no_amplitude_gives_an_empty_basis():
+    fwd = Forward(_beam(), "viscous+kv+added_mass", np.arange(64) / 512.0, n_elements=6)
+    theta = _sets(fwd, np.random.default_rng(5), n=3)
+    res = fwd.simulate_basis(theta, [])
+    assert res.y.shape == (3, 64, 0) and res.valid.shape == (3,) and res.valid.all()
