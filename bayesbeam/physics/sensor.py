@@ -119,10 +119,10 @@ def band_limit(
     coupling = np.max(np.where(cross, ratio, 0.0), axis=(1, 2), initial=0.0)
     classical = (coupling <= 1e-10) & ~((slow <= w_band) & ~keep).any(axis=1)
     finite = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(z0).reshape(B, -1).all(axis=1)
-    z0 = z0.copy()
+    # z0 with the dropped modes' coordinates zeroed (both halves of z = [Ω q; q']).
+    zc = np.where(np.concatenate([keep, keep], axis=1).reshape(B, 2 * m, *cols), z0, 0.0)
     if np.all(classical | ~finite):
-        z0[:, :m] = np.where(keep.reshape(B, m, *cols), z0[:, :m], 0.0)
-        z0[:, m:] = np.where(keep.reshape(B, m, *cols), z0[:, m:], 0.0)
+        z0 = zc
         k = int(np.max(np.count_nonzero(keep & finite[:, None], axis=1), initial=0))
         k = max(k, 1)  # a set with no mode in band keeps a zero state of one mode
         sel = np.r_[0:k, m : m + k]
@@ -157,17 +157,16 @@ def band_limit(
         Ar, zr, hr = np.zeros((B, d, d)), np.zeros((B, d, *z0.shape[2:])), np.zeros((B, d))
         cls = classical | ~finite
         sel = np.r_[0:k, m : m + k]
-        zc = np.where(np.concatenate([keep, keep], axis=1).reshape(B, 2 * m, *cols), z0, 0.0)
         Ar[cls], zr[cls], hr[cls] = A[cls][:, sel][:, :, sel], zc[cls][:, sel], h[cls][:, sel]
         for b, (M, a, g, _) in red.items():
             n = M.shape[0]
             # Zero padding: a block with A = 0, z0 = 0, h = 0 contributes nothing.
             Ar[b, :n, :n], zr[b, :n], hr[b, :n] = M, a, g
         return Ar, zr, hr
+    z0 = z0.copy()
     for b in np.flatnonzero(finite):
         if classical[b]:
-            z0[b, :m] = np.where(keep[b].reshape(m, *cols), z0[b, :m], 0.0)
-            z0[b, m:] = np.where(keep[b].reshape(m, *cols), z0[b, m:], 0.0)
+            z0[b] = zc[b]
         elif b in red:
             z0[b] = red[b][3]
         else:
