@@ -199,8 +199,13 @@ def _scored(trials, model, shared, initial, common, seed):
 
 
 def real(lengths: list[int], model: str, settings: dict, say, save, *,
-         per_length: int | None = None, shared: tuple[str, ...] | None = None) -> dict:
+         per_length: int | None = None, first: int = 0,
+         shared: tuple[str, ...] | None = None) -> dict:
     """Joint fit of the aluminium records at ``lengths`` (cm), then each record alone.
+
+    Records ``first`` to ``first + per_length - 1`` of each length are used (all from
+    ``first`` when ``per_length`` is None), so the repeats can be fitted apart from the
+    first records.
 
     One length: the attachment's position from the clamp is shared; several: its
     distance from the free end (``added_mass_tip_distance``). ``shared`` (default: the
@@ -216,8 +221,11 @@ def real(lengths: list[int], model: str, settings: dict, say, save, *,
     trials = []
     for length_cm in lengths:
         count = sum(1 for r in list_real_datasets() if r.kwargs.get("length_cm") == length_cm)
-        count = count if per_length is None else min(count, per_length)
-        trials += [_window(length_cm, i) for i in range(count)]
+        stop = count if per_length is None else min(count, first + per_length)
+        if first >= stop:
+            raise SystemExit(f"no record {first} at {length_cm} cm: it has {count} "
+                             f"(numbered from 0); lower --first-record")
+        trials += [_window(length_cm, i) for i in range(first, stop)]
     initial = [f"modes:{_n_modes(t)}" for t in trials]
     where = "added_mass_position" if len(set(lengths)) == 1 else TIP_DISTANCE
     physical = parse_model(model).physical_params
@@ -327,7 +335,10 @@ def main() -> None:
     ap.add_argument("--length", default="60",
                     help="aluminium length(s) of --part real, cm, comma-separated")
     ap.add_argument("--per-length", type=int, default=None,
-                    help="--part real: the first N records of each length (default all)")
+                    help="--part real: N records of each length (default all)")
+    ap.add_argument("--first-record", type=int, default=0,
+                    help="--part real: the first record of each length to use (0-based; "
+                         "1 for the repeats); written to joint_real_from<K>.json")
     ap.add_argument("--shared", default=None,
                     help="--part real: shared parameters, comma-separated (default the "
                          "added mass and its place; E per record)")
@@ -373,14 +384,16 @@ def main() -> None:
                       f"{sum(r['without_root_spring']['adequate'].values())}/5 |")
         elif args.part == "real":
             def save_real(out: dict) -> None:
-                (args.out / "joint_real.json").write_text(
+                name = ("joint_real.json" if args.first_record == 0
+                        else f"joint_real_from{args.first_record}.json")
+                (args.out / name).write_text(
                     json.dumps(out, indent=2, default=str) + "\n")
 
             shared = (None if args.shared is None
                       else tuple(v.strip() for v in args.shared.split(",") if v.strip()))
             res = real([int(v) for v in args.length.split(",")],
                        args.model or "viscous+kv+added_mass+ar1_noise", settings, say, save_real,
-                       per_length=args.per_length, shared=shared)
+                       per_length=args.per_length, first=args.first_record, shared=shared)
             print(f"{res['lengths_cm']} cm, {len(res['records'])} records, {res['model']}, "
                   f"shared {res['shared']}")
             print("| record | initial | fit | " + " | ".join(
@@ -418,8 +431,9 @@ def main() -> None:
                 print(f"| {r['seed']} | {r['sampled']['ess_per_s']:.1f} | "
                       f"{r['marginal']['ess_per_s']:.1f} | {r['ratio_ess_per_s']:.2f} | {d} |")
             print(f"median ratio {res['median_ratio_ess_per_s']:.2f}")
-    (args.out / f"joint_{args.part}.json").write_text(json.dumps(res, indent=2, default=str)
-                                                     + "\n")
+    name = (f"joint_real_from{args.first_record}.json"
+            if args.part == "real" and args.first_record else f"joint_{args.part}.json")
+    (args.out / name).write_text(json.dumps(res, indent=2, default=str) + "\n")
 
 
 if __name__ == "__main__":

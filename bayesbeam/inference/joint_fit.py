@@ -33,7 +33,7 @@ from bayesbeam.inference.coordinates import (
 from bayesbeam.inference.fit import _sampler_options, checkpoint_path, find_map, walker_scale
 from bayesbeam.inference.joint import TIP_DISTANCE, JointProblem, PoolCoordinates
 from bayesbeam.inference.mesh import converge_mesh
-from bayesbeam.inference.optimum import escape_bounds, local_map
+from bayesbeam.inference.optimum import chain_map, escape_bounds, local_map
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
@@ -431,6 +431,9 @@ def fit_joint(
         progress=progress, names=jp.names, preburn=PREBURN_STEPS,
         label=f"joint {model.name}: emcee", **sampler_kw,
     )
+    # As a single fit: the chains may have found a higher optimum than the search's.
+    lp_search = lp_map
+    u_map, lp_map = chain_map(jp, chain.samples, chain.log_prob, u_map, lp_map)
     settings = {
         "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh),
         "initial": initial if isinstance(initial, str) else list(initial),
@@ -438,7 +441,8 @@ def fit_joint(
         "sampler_options": dict(sampler_options or {}), "seed": seed,
         "prior_overrides": {n: jp.problems[0].priors[n].to_dict() for n in jp.overrides},
         "n_samples_data": [int(t.times.size) for t in trials],
-        "log_prob_map": lp_map, "total_seconds": time.perf_counter() - t_start,
+        "log_prob_map": lp_map, "log_prob_map_search": lp_search,
+        "total_seconds": time.perf_counter() - t_start,
         "noise": "ar1" if "rho" in jp.problems[0].names else "iid",
         "joint": {"labels": list(jp.labels), "shared": list(jp.shared),
                   "pooled": list(jp.pooled), "marginalised": list(jp.marginalised)},

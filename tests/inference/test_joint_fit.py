@@ -83,6 +83,13 @@ def test_joint_E_is_the_product_of_the_single_posteriors(joint, singles):
 
 def test_joint_reports_each_trial_adequate_and_complete(joint):
     assert joint.ok
+    # Its MAP is the better of the search's and the chains' best (polished), as a single
+    # fit's, and is the log density at the reported point.
+    st = joint.result.settings
+    assert st["log_prob_map"] >= st["log_prob_map_search"]
+    assert st["log_prob_map"] >= float(np.max(joint.result.chain.log_prob)) - 1e-9
+    lp = joint.problem.log_prob(joint.result.map_u[None])[0]
+    assert lp == pytest.approx(st["log_prob_map"], abs=1e-9)
     d = joint.to_json_dict()
     assert set(d["posterior"]["E"]) >= {"mean", "sd", "q05", "q50", "q95"}
     for lb in joint.labels:
