@@ -416,9 +416,12 @@ class JointProblem:
         if j_off is not None:
             off = Xb[:, j_off].copy()
             Xb[:, j_off] = 0.0
-        y = np.broadcast_to(pb.data, (k, pb.data.size)).copy()
+        # The data themselves (finite, checked on reading) as a read-only view unless an
+        # offset or a fixed response is taken off.
+        y = np.broadcast_to(pb.data, (k, pb.data.size))
+        y_changed = off is not None or not lin
         if off is not None:
-            y -= off[:, None]
+            y = y - off[:, None]
         valid = np.ones(k, dtype=bool)
         if not lin:
             res = pb.predict(Xb)
@@ -432,7 +435,9 @@ class JointProblem:
         else:
             B = np.zeros((k, pb.data.size, 0))
         # A response beyond 1e100 (SI) is no beam's; its squares would overflow.
-        valid &= np.all(np.abs(B) < 1e100, axis=(1, 2)) & np.all(np.abs(y) < 1e100, axis=1)
+        valid &= np.all(np.abs(B) < 1e100, axis=(1, 2))
+        if y_changed:
+            valid &= np.all(np.abs(y) < 1e100, axis=1)
         pb.n_calls += k
         return y, B, valid
 
@@ -483,9 +488,10 @@ class JointProblem:
             return self.problems[i].log_likelihood_theta(Xi)
         y, B, valid = self._linear_system(i, Xi)
         if np.any(valid):
-            yw, Bw, log_det = self._whiten(i, Xi[valid], y[valid], B[valid])
+            v = slice(None) if valid.all() else valid  # no copies in the usual case
+            yw, Bw, log_det = self._whiten(i, Xi[v], y[v], B[v])
             lo, hi, vol = self._bounds(i)
-            out[valid] = marginal_loglik(yw, Bw, lo, hi, vol, log_det=log_det)
+            out[v] = marginal_loglik(yw, Bw, lo, hi, vol, log_det=log_det)
         return out
 
     def log_likelihood(self, U: np.ndarray) -> np.ndarray:

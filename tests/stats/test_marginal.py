@@ -400,6 +400,14 @@ def test_rank_deficient_basis_is_minus_inf():
     B2 = B[2:].copy()
     B2[..., 1] *= 1e-12
     assert np.isfinite(marginal_loglik(y, B2, 0.1, 10.0)[0])
+    # One column (its own route): a zero column is rejected, a tiny one is not.
+    B1 = B[:, :, :1].copy()
+    B1[0] = 0.0
+    B1[1] *= 1e-12
+    out1 = marginal_loglik(y, B1, 0.1, 10.0)
+    assert out1[0] == -np.inf and np.isfinite(out1[1:]).all()
+    fit1 = linear_fit(y, B1)
+    assert not fit1.identified[0] and fit1.alpha_hat[0, 0] == 0.0
 
 
 def _lstsq_reference(y, Bk):
@@ -420,7 +428,8 @@ def test_cholesky_and_qr_routes_agree(p, monkeypatch):
     """The normal-equations route (well-conditioned sets) is the QR route to rounding.
 
     Both against numpy's lstsq; 1e-10 relative is ~1e6 units of rounding on these
-    condition numbers (<= 1e3), far below any use of the result.
+    condition numbers (<= 1e3), far below any use of the result. With one column both
+    take the one-column route (inner products only); lstsq checks it.
     """
     rng = np.random.default_rng(40 + p)
     B = rng.normal(size=(5, 300, p)) * np.logspace(-6, 3, p)  # columns of any unit
