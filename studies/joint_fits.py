@@ -354,6 +354,10 @@ def main() -> None:
     ap.add_argument("--max-steps", type=int, default=20000)
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "figures")
     args = ap.parse_args()
+    # One output file per part (the repeats of --part real apart from the first records).
+    result_path = args.out / (f"joint_real_from{args.first_record}.json"
+                              if args.part == "real" and args.first_record
+                              else f"joint_{args.part}.json")
 
     def say(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
@@ -365,8 +369,7 @@ def main() -> None:
         warnings.simplefilter("default", NotConvergedWarning)  # report, do not stop
         if args.part == "shipped":
             def save(rows: list[dict]) -> None:
-                (args.out / "joint_shipped.json").write_text(
-                    json.dumps(rows, indent=2, default=str) + "\n")
+                result_path.write_text(json.dumps(rows, indent=2, default=str) + "\n")
 
             res = shipped([b.strip() for b in args.beams.split(",")], settings, say, save,
                           pool=not args.no_pool)
@@ -384,10 +387,7 @@ def main() -> None:
                       f"{sum(r['without_root_spring']['adequate'].values())}/5 |")
         elif args.part == "real":
             def save_real(out: dict) -> None:
-                name = ("joint_real.json" if args.first_record == 0
-                        else f"joint_real_from{args.first_record}.json")
-                (args.out / name).write_text(
-                    json.dumps(out, indent=2, default=str) + "\n")
+                result_path.write_text(json.dumps(out, indent=2, default=str) + "\n")
 
             shared = (None if args.shared is None
                       else tuple(v.strip() for v in args.shared.split(",") if v.strip()))
@@ -431,9 +431,7 @@ def main() -> None:
                 print(f"| {r['seed']} | {r['sampled']['ess_per_s']:.1f} | "
                       f"{r['marginal']['ess_per_s']:.1f} | {r['ratio_ess_per_s']:.2f} | {d} |")
             print(f"median ratio {res['median_ratio_ess_per_s']:.2f}")
-    name = (f"joint_real_from{args.first_record}.json"
-            if args.part == "real" and args.first_record else f"joint_{args.part}.json")
-    (args.out / name).write_text(json.dumps(res, indent=2, default=str) + "\n")
+    result_path.write_text(json.dumps(res, indent=2, default=str) + "\n")
 
 
 if __name__ == "__main__":
