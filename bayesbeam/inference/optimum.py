@@ -449,6 +449,13 @@ def newton_polish(f: Callable[[np.ndarray], np.ndarray], u: np.ndarray, v: float
     lo = np.array([-np.inf if b[0] is None else b[0] for b in bounds])
     hi = np.array([np.inf if b[1] is None else b[1] for b in bounds])
     h = 1e-4 * np.maximum(1.0, np.abs(u))
+    # The first Hessian's steps at 0.2 conditional sd too (three rounds of diagonal_sd):
+    # on a log density that jitters by ~1e-2 nats (a whole record's rounding), a 1e-4
+    # step's second differences are noise, and the first step would fail and end the
+    # polish 0.5-30 nats below the mode (tests/inference/test_optimum.py).
+    with np.errstate(all="ignore"):
+        sd0 = diagonal_sd(f, u, rounds=3, h=h)
+    h = np.where(np.isfinite(sd0), 0.2 * sd0, h)
     for _ in range(iters):
         with np.errstate(all="ignore"):
             _, g, H = fd_hessian(f, u, h)

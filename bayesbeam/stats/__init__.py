@@ -1,7 +1,8 @@
 """Statistics that know nothing of beams.
 
 Statistics that know nothing of beams: prior families and prior sets, Gaussian
-likelihoods (i.i.d., AR(1)), emcee sampling with convergence checks and checkpoints,
+likelihoods (i.i.d., AR(1)), emcee sampling with convergence checks and checkpoints
+(and a corrected snooker move),
 bridge-sampling / Laplace evidence, information criteria, evidence ranking,
 finite-difference derivatives, and whiteness tests of residual series.
 
@@ -69,6 +70,7 @@ _EXPORTS = {
     "preburn_walkers": ".sampling",
     "run_emcee": ".sampling",
     "SamplingError": ".checkpoint",
+    "SnookerMove": ".moves",
     "stationary_ar1": ".likelihood",
     "STRANDED_NATS": ".sampling",
     "standardized_innovations": ".likelihood",

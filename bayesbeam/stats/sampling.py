@@ -65,6 +65,7 @@ import numpy as np
 from bayesbeam._util import progress_bar, stderr_is_live
 from bayesbeam.stats.checkpoint import CheckpointBackend, SamplingError, open_checkpoint
 from bayesbeam.stats.convergence import Check, check_convergence, failed_criteria, kept_tau
+from bayesbeam.stats.moves import SnookerMove
 from bayesbeam.stats.priors import PriorSet
 
 __all__ = [
@@ -312,7 +313,8 @@ def preburn_walkers(
                         random_state=sampler.random_state)
     n_blocks = max(1, int(steps) // block)
     for k in range(n_blocks):
-        state = sampler.run_mcmc(state, block, progress=False, store=False)
+        state = sampler.run_mcmc(state, block, progress=False, store=False,
+                                 skip_initial_state_check=k > 0)  # the start once (run_emcee)
         if k == n_blocks - 1:
             break  # the last block runs free
         lp = state.log_prob
@@ -504,14 +506,16 @@ def de_moves() -> list[tuple[Any, float]]:
     faster than emcee's default stretch move on the near-Gaussian, correlated beam
     posteriors (integrated autocorrelation times about 3-4x shorter in our runs;
     ``studies/bench_moves.py`` measures ESS per second against the alternatives of
-    :data:`MOVE_SETS`).
+    :data:`MOVE_SETS`). The snooker update is the package's
+    :class:`~bayesbeam.stats.moves.SnookerMove`: emcee 3.1.6's ``DESnookerMove`` does not
+    leave the target invariant (see :mod:`bayesbeam.stats.moves`).
 
     Returns
     -------
     list of (emcee.moves.Move, float)
         The ``moves`` argument of :func:`run_emcee` (new move objects on each call).
     """
-    return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    return [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)]
 
 
 #: Named proposal mixtures (``sampler_options={"moves": NAME}``); ``"de"`` is the default.
@@ -734,6 +738,12 @@ def run_emcee(
                 f"walkers {bad} start where log_prob is -inf (outside the prior support "
                 "or an invalid model); start them inside, e.g. with init_walkers"
             )
+        if not emcee.ensemble.walkers_independent(u0):
+            raise SamplingError(
+                "the start walkers are (nearly) linearly dependent (a column without spread, "
+                "or a condition number above 1e8), so the ensemble moves cannot explore every "
+                "direction; spread them around the start, e.g. with init_walkers"
+            )
         if preburn > 0:
             u0, lp0 = preburn_walkers(fn, u0, lp0, preburn, seed=seed, moves=moves)
         state = emcee.State(u0, log_prob=lp0, random_state=sampler.random_state)
@@ -778,7 +788,12 @@ def run_emcee(
                     bar.set_info(check)
             while not (check is not None and check.converged) and it < max_steps:
                 target = min((it // check_every + 1) * check_every, max_steps)
-                steps = sampler.sample(state, iterations=target - it, progress=False)
+                # emcee's check that the walkers are linearly independent guards a
+                # start (done above, before any pre-burn); each chunk here continues a
+                # chain whose ensemble may legally have narrowed (a funnel's neck), which
+                # the convergence checks judge.
+                steps = sampler.sample(state, iterations=target - it, progress=False,
+                                       skip_initial_state_check=True)
                 for new_state in steps:
                     state = new_state
                     it += 1

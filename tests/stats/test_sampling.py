@@ -298,6 +298,27 @@ def test_input_errors():
         run_emcee(log_prob, u0, seed=0, names=["a", "a", "b"])
     with pytest.raises(SamplingError, match="walkers \\[0\\] start where log_prob is -inf"):
         run_emcee(lambda U: np.where(U[:, 0] == u0[0, 0], -np.inf, 0.0), u0, seed=0)
+    flat = u0.copy()
+    flat[:, 2] = 1.0  # one parameter without spread: the ensemble cannot move along it
+    with pytest.raises(SamplingError, match="linearly dependent"):
+        run_emcee(log_prob, flat, seed=0)
+
+
+def test_a_narrowed_ensemble_keeps_sampling():
+    # The target pins x2 - x1 to ~1e-9 (as a pooled spread near zero pins each trial's
+    # value to the population's): within a few hundred steps the ensemble lies on the
+    # line x1 = x2, its columns linearly dependent, which emcee's start check rejects.
+    # The run continues (each chunk continues the chain) and stays on the pin.
+    def pinned(U):
+        return -0.5 * (U[:, 0] ** 2 + U[:, 2] ** 2 + ((U[:, 1] - U[:, 0]) / 1e-9) ** 2)
+
+    u0 = np.random.default_rng(0).standard_normal((16, 3))
+    u0[:, 1] = u0[:, 0] + 1e-3 * u0[:, 1]
+    with pytest.warns(NotConvergedWarning):
+        ch = run_emcee(pinned, u0, seed=0, max_steps=600, min_steps=600, target_ess=1e9,
+                       check_every=100, progress=False)
+    assert ch.n_steps_total == 600
+    assert np.abs(ch.samples[-1, :, 1] - ch.samples[-1, :, 0]).max() < 1e-7
     with pytest.raises(SamplingError, match="returned nan"):
         run_emcee(lambda U: np.full(len(U), np.nan), u0, seed=0)
     with pytest.raises(SamplingError, match="shape"):
