@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -595,6 +595,7 @@ def chain_in_u(chain: Chain, u_samples: np.ndarray, log_prob: np.ndarray | None 
 
 def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: Coordinates,
                           u0: np.ndarray, *, moves: str = "de", helpers: int = 0,
+                          extra_moves: Sequence[tuple[Any, float]] = (),
                           **kwargs: Any) -> Chain:
     """Run emcee (:func:`~bayesbeam.stats.sampling.run_emcee`) in ``coords``.
 
@@ -617,6 +618,9 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
         Processes that share each batch of ``log_prob`` with this one
         (:class:`~bayesbeam.inference.parallel.ParallelLogProb`; ``log_prob`` must then
         be picklable, e.g. a problem's bound ``log_prob``). The chain is the same.
+    extra_moves : sequence of (emcee move, float)
+        Moves mixed in with these weights (summing below 1); the named mixture's
+        weights are scaled to the rest (e.g. the pooled spreads' walk of a joint fit).
     **kwargs
         Passed to :func:`~bayesbeam.stats.sampling.run_emcee` (``seed``, ``max_steps``,
         ``target_ess``, ``names``, ``preburn``, ...).
@@ -629,7 +633,11 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
         def log_prob_v(V: np.ndarray) -> np.ndarray:
             return shared(coords.to_u(V)) + coords.log_jacobian(V)
 
-        chain = run_emcee(log_prob_v, coords.to_v(u0), moves=named_moves(moves),
+        w_extra = sum(w for _, w in extra_moves)
+        if not 0.0 <= w_extra < 1.0:
+            raise ValueError(f"extra_moves' weights must sum to [0, 1), got {w_extra}")
+        mix = [(m, w * (1.0 - w_extra)) for m, w in named_moves(moves)] + list(extra_moves)
+        chain = run_emcee(log_prob_v, coords.to_v(u0), moves=mix,
                           space=coords.describe(), **kwargs)
     if coords.identity:
         return chain

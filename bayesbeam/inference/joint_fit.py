@@ -4,7 +4,9 @@ Steps: each trial's own MAP and mesh check (:func:`bayesbeam.inference.fit.find_
 :func:`~bayesbeam.inference.mesh.converge_mesh`; the finest converged mesh serves every
 trial); the joint MAP from those points (:meth:`JointProblem.joint_theta`, L-BFGS-B);
 emcee in the centred coordinates of the pooled parameters
-(:class:`~bayesbeam.inference.joint.PoolCoordinates`) until the ESS target; the
+(:class:`~bayesbeam.inference.joint.PoolCoordinates`), with a walk of each pooled spread at
+fixed non-centred values beside the ensemble's moves
+(:class:`~bayesbeam.stats.moves.ReparamWalkMove`), until the ESS target; the
 marginalised sigma and amplitudes drawn exactly for the kept draws; per trial, a
 :class:`~bayesbeam.inference.results.FitResult` of its own parameters (completed draws) and
 the adequacy checks of :func:`~bayesbeam.inference.adequacy.assess`: a joint fit must say
@@ -39,6 +41,7 @@ from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.physics.propagate import single_blas_thread
 from bayesbeam.stats.convergence import autocorr_time, ess_rhat
+from bayesbeam.stats.moves import ReparamWalkMove
 from bayesbeam.stats.sampling import Chain, init_walkers
 from bayesbeam.trials.trial import Trial
 
@@ -53,6 +56,9 @@ def _json(obj: Any) -> str:
 #: Posterior draws kept for the completed per-trial posteriors (sigma and amplitudes
 #: drawn given each kept draw) and their reports.
 MAX_DRAWS = 2000
+#: Share of the sampler's steps that walk the pooled spreads at fixed non-centred values
+#: (:class:`~bayesbeam.stats.moves.ReparamWalkMove`); the named mixture has the rest.
+SPREAD_MOVE_WEIGHT = 0.2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -425,8 +431,15 @@ def fit_joint(
     nwalkers = walker_count(nwalkers, ndim)
     scale = walker_scale(jp, u_map)
     u0 = init_walkers(jp.log_prob, u_map, nwalkers, rng=rng, scale=scale)
+    # Pooled spreads: a walk of log s at fixed non-centred z_i beside the centred
+    # ensemble (ReparamWalkMove), where a spread near zero is a funnel for the ensemble
+    # (tests/stats/test_moves.py: the centred DE mixture alone does not converge there).
+    spreads = [s for _, s, _ in coords.pool.groups]
+    extra = ([(ReparamWalkMove(coords.to_u, coords.to_v, coords.log_jacobian, spreads),
+               SPREAD_MOVE_WEIGHT)] if spreads else [])
     chain: Chain = sample_in_coordinates(
         jp.log_prob, coords, u0, seed=seed, max_steps=max_steps, min_steps=min_steps,
+        extra_moves=extra,
         target_ess=target_ess, backend_path=checkpoint_path(outdir, resume), resume=resume,
         progress=progress, names=jp.names, preburn=PREBURN_STEPS,
         label=f"joint {model.name}: emcee", **sampler_kw,
@@ -447,6 +460,7 @@ def fit_joint(
         "joint": {"labels": list(jp.labels), "shared": list(jp.shared),
                   "pooled": list(jp.pooled), "marginalised": list(jp.marginalised)},
         "sampler_coordinates": coords.describe(),
+        "spread_move_weight": SPREAD_MOVE_WEIGHT if spreads else 0.0,
         "mesh_per_trial": [m.get("summary", "") for m in meshes],
     }
     provenance = make_provenance({

@@ -70,6 +70,7 @@ _EXPORTS = {
     "preburn_walkers": ".sampling",
     "run_emcee": ".sampling",
     "SamplingError": ".checkpoint",
+    "ReparamWalkMove": ".moves",
     "SnookerMove": ".moves",
     "stationary_ar1": ".likelihood",
     "STRANDED_NATS": ".sampling",
