@@ -3,7 +3,7 @@
 Issue 13 asks that moves and walker counts be chosen by measurement, in ESS per second
 rather than wall time (a chain that stops early has a short wall time; one that runs
 long has a large ESS). For each named mixture of
-:data:`bayesbeam.stats.sampling.MOVE_SETS` (``de``: differential evolution 0.8 +
+:data:`bayesbeam.stats.moves.MOVE_SETS` (``de``: differential evolution 0.8 +
 snooker 0.2, the package default; ``stretch``: emcee's default; ``de+stretch``) and
 each walker count (the default ``max(32, 4 ndim)`` and twice it), one 1280-sample
 release of the source study's single-ply beam (:mod:`bench_fit`'s trial, simulated on a
@@ -33,7 +33,8 @@ import numpy as np
 from bench_fit import bench_beam, true_params
 
 from bayesbeam.inference.fit import fit
-from bayesbeam.stats.sampling import MOVE_SETS, NotConvergedWarning
+from bayesbeam.stats.moves import MOVE_SETS
+from bayesbeam.stats.sampling import NotConvergedWarning
 from bayesbeam.trials.synthetic import simulate_trial
 
 try:  # optional: limits BLAS threads at run time

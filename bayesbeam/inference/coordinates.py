@@ -28,7 +28,8 @@ from bayesbeam.physics.fem import (
 )
 from bayesbeam.stats.convergence import autocorr_time, ess_rhat
 from bayesbeam.stats.families import HalfNormal, LogNormal, LogUniform, Uniform
-from bayesbeam.stats.sampling import Chain, named_moves, run_emcee
+from bayesbeam.stats.moves import named_moves
+from bayesbeam.stats.sampling import Chain, run_emcee
 
 __all__ = ["PREBURN_STEPS", "ClampCoordinates", "Coordinates", "SamplerCoordinates",
            "chain_in_u", "sample_in_coordinates"]
@@ -601,7 +602,7 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
 
     The walkers start at ``coords.to_v(u0)`` and move on ``log_prob(u(v)) + log|∂u/∂v|``
     with the proposal mixture ``moves`` (default the differential-evolution mixture of
-    :func:`~bayesbeam.stats.sampling.de_moves`); the chain comes back in ``u``
+    :func:`~bayesbeam.stats.moves.de_moves`); the chain comes back in ``u``
     (:func:`chain_in_u`), its log density in ``u``.
 
     Parameters
@@ -613,7 +614,7 @@ def sample_in_coordinates(log_prob: Callable[[np.ndarray], np.ndarray], coords: 
     u0 : ndarray, shape (nwalkers, ndim)
         Initial walkers in ``u``.
     moves : str
-        A name of :data:`~bayesbeam.stats.sampling.MOVE_SETS`.
+        A name of :data:`~bayesbeam.stats.moves.MOVE_SETS`.
     helpers : int
         Processes that share each batch of ``log_prob`` with this one
         (:class:`~bayesbeam.inference.parallel.ParallelLogProb`; ``log_prob`` must then

@@ -41,8 +41,9 @@ from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
 from bayesbeam.inference.starts import data_features, neutral_value, physics_starts
 from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 from bayesbeam.physics.propagate import single_blas_thread
+from bayesbeam.stats.moves import named_moves
 from bayesbeam.stats.numdiff import fd_hessian
-from bayesbeam.stats.sampling import Chain, init_walkers, named_moves
+from bayesbeam.stats.sampling import Chain, init_walkers
 from bayesbeam.trials.modal_id import first_mode_decay_rate
 from bayesbeam.trials.trial import Trial
 
@@ -532,7 +533,7 @@ def fit(
         (``n_tau``, ``tau_rtol``, ``check_every``, ``burn_in_taus``, ``thin``,
         ``checkpoint_seconds``), e.g. a cheaper stopping rule for batch studies, and
         ``moves``: the proposal mixture, a name of
-        :data:`~bayesbeam.stats.sampling.MOVE_SETS` (default ``"de"``), and ``helpers``:
+        :data:`~bayesbeam.stats.moves.MOVE_SETS` (default ``"de"``), and ``helpers``:
         processes that share each batch of the sampler with this one (default 0; see
         :class:`~bayesbeam.inference.parallel.ParallelLogProb`: worth it on whole
         records, where a batch takes tens of ms).

@@ -26,7 +26,7 @@ _EXPORTS = {
     "CheckpointBackend": ".checkpoint",
     "CriteriaError": ".criteria",
     "DEFAULT_THRESHOLD": ".ranking",
-    "de_moves": ".sampling",
+    "de_moves": ".moves",
     "effective_sample_size": ".evidence",
     "elpd_difference": ".criteria",
     "ess_rhat": ".convergence",

@@ -65,15 +65,11 @@ import numpy as np
 from bayesbeam._util import progress_bar, stderr_is_live
 from bayesbeam.stats.checkpoint import CheckpointBackend, SamplingError, open_checkpoint
 from bayesbeam.stats.convergence import Check, check_convergence, failed_criteria, kept_tau
-from bayesbeam.stats.moves import SnookerMove
 from bayesbeam.stats.priors import PriorSet
 
 __all__ = [
     "Chain",
     "NotConvergedWarning",
-    "de_moves",
-    "MOVE_SETS",
-    "named_moves",
     "init_walkers",
     "make_log_prob",
     "preburn_walkers",
@@ -497,56 +493,6 @@ def init_walkers(
             "redraws; move center inside the support or reduce scale"
         )
     return u
-
-
-def de_moves() -> list[tuple[Any, float]]:
-    """Return the proposal moves of the package's fits: differential evolution (+ snooker).
-
-    Differential-evolution proposals (ter Braak 2006; ter Braak & Vrugt 2008) mix much
-    faster than emcee's default stretch move on the near-Gaussian, correlated beam
-    posteriors (integrated autocorrelation times about 3-4x shorter in our runs;
-    ``studies/bench_moves.py`` measures ESS per second against the alternatives of
-    :data:`MOVE_SETS`). The snooker update is the package's
-    :class:`~bayesbeam.stats.moves.SnookerMove`: emcee 3.1.6's ``DESnookerMove`` does not
-    leave the target invariant (see :mod:`bayesbeam.stats.moves`).
-
-    Returns
-    -------
-    list of (emcee.moves.Move, float)
-        The ``moves`` argument of :func:`run_emcee` (new move objects on each call).
-    """
-    return [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)]
-
-
-#: Named proposal mixtures (``sampler_options={"moves": NAME}``); ``"de"`` is the default.
-MOVE_SETS: dict[str, Callable[[], list[tuple[Any, float]]]] = {
-    "de": de_moves,
-    "stretch": lambda: [(emcee.moves.StretchMove(), 1.0)],
-    "de+stretch": lambda: [(emcee.moves.DEMove(), 0.5), (emcee.moves.StretchMove(), 0.5)],
-}
-
-
-def named_moves(name: str) -> list[tuple[Any, float]]:
-    """Return new move objects of the mixture ``name`` (:data:`MOVE_SETS`).
-
-    Parameters
-    ----------
-    name : str
-        ``"de"`` (differential evolution 0.8 + snooker 0.2), ``"stretch"`` (emcee's
-        default, Goodman & Weare 2010) or ``"de+stretch"`` (half each).
-
-    Returns
-    -------
-    list of (emcee.moves.Move, float)
-
-    Raises
-    ------
-    ValueError
-        On an unknown name (the message lists the known ones).
-    """
-    if name not in MOVE_SETS:
-        raise ValueError(f"unknown moves {name!r}; choose one of {sorted(MOVE_SETS)}")
-    return MOVE_SETS[name]()
 
 
 class _DeferredInterrupt:

@@ -14,8 +14,8 @@ it at 0.24 (measured while writing this test; ``bayesbeam.stats.moves``).
 import numpy as np
 import pytest
 
-from bayesbeam.stats.moves import ReparamWalkMove, SnookerMove
-from bayesbeam.stats.sampling import de_moves, run_emcee
+from bayesbeam.stats.moves import ReparamWalkMove, SnookerMove, de_moves
+from bayesbeam.stats.sampling import run_emcee
 
 SIG = np.full(5, 0.3)  # records that each see their own value weakly: s is wide
 Y = 0.5 + SIG * np.random.default_rng(1).standard_normal(SIG.size)  # one value: s = 0

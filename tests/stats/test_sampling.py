@@ -118,7 +118,7 @@ def test_ess_per_second_is_the_smallest_ess_over_the_sampling_time(toy_chain):
 def test_named_move_sets():
     import emcee
 
-    from bayesbeam.stats.sampling import MOVE_SETS, named_moves
+    from bayesbeam.stats.moves import MOVE_SETS, named_moves
 
     kw = {"seed": 3, "names": PRIORS.names, "progress": False, "max_steps": 400,
           "min_steps": 400, "target_ess": 1.0}
