@@ -28,6 +28,15 @@ closed form (:mod:`bayesbeam.physics.modal_closed`) instead of propagating the s
 same response to rounding (checked to 1e-9 relative in the tests), at any stamps. The
 choice is made in one place, :meth:`Forward._path_for`; ``path='full'`` forces the
 propagation, and :attr:`Forward.last_path` says which path the last call took.
+
+Band-modes path. With a sensor band and coupled damping (spatial hysteresis, damping not
+proportional to M or K, any structure), the few eigen-solutions inside the band are found
+directly from the modal quadratic eigenproblem and summed in closed form
+(:mod:`bayesbeam.physics.modal_coupled`): the same kept eigen-solutions as the
+state-space reduction of :func:`~bayesbeam.physics.sensor.band_limit` (to rounding,
+1e-9 relative in the tests) without reducing or propagating the ``2n``-dimensional state.
+Sets where that iteration does not apply (a mode at the band edge, strong coupling) are
+propagated in full, and :attr:`Forward.last_path` then reads 'band-modes+full'.
 """
 
 from __future__ import annotations
@@ -42,7 +51,8 @@ from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.expm import expm_batched
 from bayesbeam.physics.fem import FEModel, assemble, static_tip_shape
 from bayesbeam.physics.hysteresis import HysteresisOperator
-from bayesbeam.physics.modal_closed import closed_form_response
+from bayesbeam.physics.modal_closed import closed_form_response, terms_response
+from bayesbeam.physics.modal_coupled import band_eigenpairs, band_terms
 from bayesbeam.physics.models import Model, parse_model
 from bayesbeam.physics.sensor import band_limit, check_bandwidth
 
@@ -262,9 +272,10 @@ class Forward:
         ``|λ| > 2π·bandwidth`` are removed from the output. None or inf: all modes.
     path : {'auto', 'full'}, optional
         'auto' (default): classically damped models with a fixed structure take the
-        closed-form modal sum (see the module docstring), all others the full
-        propagation; 'full': always the full propagation (a reference for tests and the
-        benchmark). Can be changed later through the attribute of the same name.
+        closed-form modal sum, coupled models seen through a sensor band the band's
+        eigen-solutions (see the module docstring), all others the full propagation;
+        'full': always the full propagation (a reference for tests and the benchmark).
+        Can be changed later through the attribute of the same name.
 
     Attributes
     ----------
@@ -272,10 +283,11 @@ class Forward:
         Whether this model is classically damped with shared mode shapes (the closed-form
         path applies to every admissible set).
     last_path : str or None
-        Path of the last :meth:`simulate` call: 'closed-form', 'full', or
-        'closed-form+full' when some sets were propagated in full (a near-critical mode
-        split by the band edge, or a set the closed form could not evaluate); None before
-        the first call.
+        Path of the last :meth:`simulate` (or :meth:`simulate_basis`) call:
+        'closed-form', 'band-modes', 'full', or 'closed-form+full' / 'band-modes+full'
+        when some sets were propagated in full (a near-critical mode split by the band
+        edge, a mode at the band edge, a set the fast path could not evaluate); None
+        before the first call.
     """
 
     def __init__(
@@ -701,16 +713,17 @@ class Forward:
         # report them in a mask; they are flagged here and never raise for the whole
         # batch (emcee evaluates whole ensembles at once).
         with np.errstate(all="ignore"):
-            if self._path_for() == "closed-form":
-                yy, ok = self._closed_form(th)
+            path = self._path_for()
+            if path == "full":
+                yy, ok = self._full(th)
+            else:
+                fast = self._closed_form if path == "closed-form" else self._band_modes
+                yy, ok = fast(th)
                 rest = np.flatnonzero(~ok)
-                self.last_path = "closed-form"
                 if rest.size:  # propagate those sets in full (they may still be invalid)
                     yy[rest], ok[rest] = self._full(th[rest])
-                    self.last_path = "closed-form+full"
-            else:
-                yy, ok = self._full(th)
-                self.last_path = "full"
+                    path += "+full"
+            self.last_path = path
         # Both paths flag non-finite rows in `ok` themselves (return_valid of the
         # propagator, closed_form_response): no second scan of the output here.
         if ok.all() and valid.all():  # the common case: no row to scatter
@@ -723,8 +736,16 @@ class Forward:
         return Response(y, valid)
 
     def _path_for(self) -> str:
-        """Return the path :meth:`simulate` takes, 'closed-form' or 'full' (the one choice)."""
-        return "closed-form" if self.classical and self.path == "auto" else "full"
+        """Return the path :meth:`simulate` takes (the one choice).
+
+        'closed-form' (classically damped, fixed structure), 'band-modes' (any other
+        damping seen through a sensor band) or 'full'.
+        """
+        if self.path != "auto":
+            return "full"
+        if self.classical:
+            return "closed-form"
+        return "full" if self.bandwidth is None else "band-modes"
 
     def simulate_basis(self, theta: np.ndarray, columns: list[int]) -> Response:
         """Responses to each of the initial condition's amplitudes alone, per set.
@@ -786,28 +807,91 @@ class Forward:
             return Response(y, valid)
         th = [pr[idx] for pr in probes]
         n = idx.size
+        path = self._path_for()
         with np.errstate(all="ignore"):
             omega, C, phi = self.modal_system(th[0])
             # _initial_state reads the stiffness matrices of this very modal_system call.
             Z0 = np.stack([self._initial_state(t, omega, phi) for t in th], axis=-1)
-            h = self._output(omega, C, phi)
-            A = propagate.state_matrix(omega, C, check=False)
-            if self.bandwidth is not None:
-                A, Z0, h = band_limit(A, Z0, h, omega, C, 2 * np.pi * self.bandwidth)
-            # The p initial states as p sets of the same (reduced) system.
-            d = A.shape[1]
-            yy, ok = self._propagate(np.repeat(A, p, axis=0),
-                                     np.moveaxis(Z0, -1, 1).reshape(n * p, d),
-                                     np.repeat(h, p, axis=0))
-        self.last_path = "full"
-        ok = ok.reshape(n, p).all(axis=1)
-        y[idx[ok]] = np.moveaxis(yy.reshape(n, p, T)[ok], 1, -1)
+            yy = np.zeros((n, p, T))
+            ok = np.zeros(n, dtype=bool)
+            rest = np.arange(n)
+            if path == "band-modes":
+                yy, ok = self._band_modes_basis(omega, C, phi, Z0)
+                rest = np.flatnonzero(~ok)
+            if rest.size:
+                phi_r = phi if phi.ndim == 2 else phi[rest]
+                yy[rest], ok[rest] = self._basis_full(omega[rest], C[rest], phi_r, Z0[rest])
+                path = "full" if rest.size == n else path + "+full"
+        self.last_path = path
+        y[idx[ok]] = np.moveaxis(yy[ok], 1, -1)
         valid[idx[~ok]] = False
         return Response(y, valid)
 
     def _full(self, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full propagation of admissible sets → (y (B, T), ok (B,))."""
         return self._propagate(*self._state_space(th, check=False))
+
+    def _basis_full(self, omega: np.ndarray, C: np.ndarray, phi: np.ndarray,
+                    Z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Full propagation of ``p`` initial states per set → (y (B, p, T), ok (B,))."""
+        n, p, T = omega.shape[0], Z0.shape[-1], self._t.size
+        h = self._output(omega, C, phi)
+        A = propagate.state_matrix(omega, C, check=False)
+        if self.bandwidth is not None:
+            A, Z0, h = band_limit(A, Z0, h, omega, C, 2 * np.pi * self.bandwidth)
+        # The p initial states as p sets of the same (reduced) system.
+        d = A.shape[1]
+        yy, ok = self._propagate(np.repeat(A, p, axis=0),
+                                 np.moveaxis(Z0, -1, 1).reshape(n * p, d),
+                                 np.repeat(h, p, axis=0))
+        return yy.reshape(n, p, T), ok.reshape(n, p).all(axis=1)
+
+    def _terms_at_stamps(self, lam: np.ndarray,
+                         coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``Re Σ_j coef_j e^{λ_j t}`` at the trial's stamps from t0 → (y (B, T), ok (B,)).
+
+        The same grids as the full path: lead + uniform step, a grid with holes
+        simulated whole, or the stamps themselves.
+        """
+        if self.uniform:
+            y, ok, _ = terms_response(lam, coef, uniform=(self._lead, self._dt, self._t.size))
+            return y, ok
+        if self._grid is not None:
+            step, index = self._grid
+            y, ok, _ = terms_response(lam, coef,
+                                      uniform=(self._lead, step, int(index[-1]) + 1))
+            return y[:, index], ok
+        y, ok, _ = terms_response(lam, coef, times=self._lead + self._t)
+        return y, ok
+
+    def _band_modes(self, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Band-modes path of admissible sets → (y, ok); see the module docstring.
+
+        ``ok`` is False for sets to propagate in full instead
+        (:func:`bayesbeam.physics.modal_coupled.band_eigenpairs`).
+        """
+        omega, C, phi, z0 = self.modal_initial_state(th)
+        lam, V, norm, keep, ok = band_eigenpairs(omega, C, 2 * np.pi * self.bandwidth)
+        s = np.einsum("n,...nm->...m", self.sensor, phi)
+        coef = band_terms(lam, V, norm, keep, omega, z0, s, self.quantity)
+        y, ok_sum = self._terms_at_stamps(lam, coef)
+        return y, ok & ok_sum
+
+    def _band_modes_basis(self, omega: np.ndarray, C: np.ndarray, phi: np.ndarray,
+                          Z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Band-modes path of ``p`` initial states per set → (y (B, p, T), ok (B,)).
+
+        One eigen-solution search per set; only the coefficients differ between the
+        initial states.
+        """
+        n, p = omega.shape[0], Z0.shape[-1]
+        lam, V, norm, keep, ok = band_eigenpairs(omega, C, 2 * np.pi * self.bandwidth)
+        s = np.einsum("n,...nm->...m", self.sensor, phi)
+        coef = band_terms(lam, V, norm, keep, omega, Z0, s, self.quantity)  # (B, J, p)
+        J = lam.shape[1]
+        y, ok_sum = self._terms_at_stamps(np.repeat(lam, p, axis=0),
+                                          np.moveaxis(coef, -1, 1).reshape(n * p, J))
+        return y.reshape(n, p, -1), ok & ok_sum.reshape(n, p).all(axis=1)
 
     def _propagate(self, A: np.ndarray, z0: np.ndarray,
                    h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

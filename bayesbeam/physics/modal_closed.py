@@ -59,6 +59,7 @@ __all__ = [
     "modal_terms",
     "term_sum_times",
     "term_sum_uniform",
+    "terms_response",
 ]
 
 #: Relative distance ``|d| / ω`` (or ``δ / ω``) to critical damping below which a mode
@@ -406,8 +407,6 @@ def closed_form_response(
         is split by the band, or where a kept term's phase ``|Im λ| t`` exceeds 1e12 rad
         (the caller propagates those sets in full).
     """
-    if (times is None) == (uniform is None):
-        raise ValueError("give exactly one of times and uniform")
     s = np.broadcast_to(s, omega.shape)
     x0, dx0 = _quantity_initial(omega, c, q0, v0, quantity)
     y0, dy0 = s * x0, s * dx0
@@ -417,7 +416,48 @@ def closed_form_response(
         omega, c = np.where(ok[:, None], omega, 1.0), np.where(ok[:, None], c, 0.0)
         y0, dy0 = np.where(ok[:, None], y0, 0.0), np.where(ok[:, None], dy0, 0.0)
     lam, coef, near, split = modal_terms(omega, c, y0, dy0, w_band)
-    ok &= ~split
+    y, ok_terms, t = terms_response(lam, coef, times=times, uniform=uniform,
+                                    backend=backend, finish=not near.any())
+    ok &= ~split & ok_terms
+    if near.any():
+        y += _near_critical_sum(omega, c, y0, dy0, near, t)
+        ok &= _finite_rows(y)
+    return y, ok
+
+
+def terms_response(
+    lam: np.ndarray, coef: np.ndarray, *, times: np.ndarray | None = None,
+    uniform: tuple[float, float, int] | None = None, backend: str = "auto",
+    finish: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``y(t) = Re Σ_j coef_j e^{λ_j t}`` at the stamps, with the checks of the closed form.
+
+    Parameters
+    ----------
+    lam, coef : ndarray of complex, shape (B, J)
+        Roots (1/s, ``Re λ <= 0``) and coefficients (units of the output); terms with
+        ``coef = 0`` are left out.
+    times : ndarray, shape (T,), optional
+        Stamps in s from t = 0, all ≥ 0. Give this or ``uniform``.
+    uniform : tuple (t_first, dt, n), optional
+        Stamps ``t_first + k dt``, k = 0..n-1 (s).
+    backend : {"auto", "numba", "numpy"}
+        Route of a uniform grid's sum (:func:`term_sum_uniform`).
+    finish : bool
+        Also flag sets whose output is not finite (False: the caller adds more and
+        checks the sum itself).
+
+    Returns
+    -------
+    y : ndarray, shape (B, T)
+    ok : ndarray of bool, shape (B,)
+        False where a kept term's phase ``|Im λ| t`` exceeds 1e12 rad or (with
+        ``finish``) where ``y`` is not finite.
+    t : ndarray, shape (T,)
+        The stamps (s).
+    """
+    if (times is None) == (uniform is None):
+        raise ValueError("give exactly one of times and uniform")
     if uniform is not None:
         t_first, dt, n = uniform
         t = t_first + dt * np.arange(n)
@@ -426,7 +466,7 @@ def closed_form_response(
     # A phase ω t beyond 1e12 rad carries a rounding of ≥ 2e-4 rad (absurd parameters,
     # e.g. E = 1e300): such sets go to the full path, which flags them when they overflow.
     phase = np.abs(np.where(coef != 0, lam.imag, 0.0)).max(axis=1, initial=0.0)
-    ok &= phase * float(np.max(t, initial=0.0)) <= _MAX_PHASE
+    ok = phase * float(np.max(t, initial=0.0)) <= _MAX_PHASE
     positive = t[t > 0]
     use = _pick_backend(backend)
     # Only the numpy route of a uniform grid needs the terms ordered by lifetime.
@@ -438,7 +478,6 @@ def closed_form_response(
     else:
         y = term_sum_times(lam, coef, t)
     y[:, t == 0] += at_zero[:, None]
-    if near.any():
-        y += _near_critical_sum(omega, c, y0, dy0, near, t)
-    ok &= _finite_rows(y)
-    return y, ok
+    if finish:
+        ok &= _finite_rows(y)
+    return y, ok, t

@@ -49,7 +49,8 @@ def test_run_bench_rejects_bad_sizes(kwargs):
 
 def test_path_table_reports_each_model_and_the_path_taken():
     # Issue 13: the path table (closed form for the classically damped models, full
-    # propagation for spatial hysteresis), on a small problem (same code as the real run).
+    # propagation for spatial hysteresis, its eigen-solutions in band with a sensor band),
+    # on a small problem (same code as the real run).
     res = run_bench(n_sets=3, n_samples=64, repeats=1, rk45_elements=2, n_elements=6,
                     path_samples=(64, 96))
     rows = res["paths"]
@@ -60,14 +61,14 @@ def test_path_table_reports_each_model_and_the_path_taken():
     for row in rows:
         expected = "full" if row["model"] == "viscous+sh" else "closed-form"
         if row["band_hz"] is not None:
-            expected += f" {row['band_hz']:g} Hz"
+            expected = f"band-modes {row['band_hz']:g} Hz"
         assert row["path"] == expected
         for key in ("per_set_s", "full_per_set_s", "bare_per_set_s"):
             assert math.isfinite(row[key]) and row[key] > 0
         if row["band_hz"] is not None:
             # The bench beam's modes at 11, 69 and 193 Hz: two inside 100 Hz; the band
             # changes the signal, so no difference to the full propagation is claimed
-            # (the reduction's accuracy: tests/physics/test_forward_band.py).
+            # (the path's accuracy: tests/physics/test_modal_coupled.py).
             assert row["modes_in_band"] == 2 and math.isnan(row["max_rel_diff_vs_full"])
             continue
         assert row["modes_in_band"] == 12  # 6 elements, 2 dofs per node, clamped root
