@@ -39,6 +39,9 @@ import math
 
 import numpy as np
 
+from bayesbeam._util import compiled_kernel
+from bayesbeam.physics.hysteresis_kernel import _panel_moments_kernel_py
+
 __all__ = ["HysteresisError", "HysteresisOperator"]
 
 
@@ -329,8 +332,18 @@ class HysteresisOperator:
         g = np.exp(-0.5 * r * r) / b[:, None, None]
         return np.matmul(g.transpose(1, 0, 2), self._wide_w).transpose(1, 0, 2)
 
-    def _moments_panels(self, b: np.ndarray, n_act: int) -> np.ndarray:
-        """Moments by composite Gauss–Legendre (panels <= b, split at piece edges), (B, P, 6)."""
+    def _moments_panels(self, b: np.ndarray, n_act: int, backend: str = "auto") -> np.ndarray:
+        """Moments by composite Gauss–Legendre (panels <= b, split at piece edges), (B, P, 6).
+
+        ``backend``: "auto" runs the compiled kernel
+        (:func:`~bayesbeam.physics.hysteresis_kernel._panel_moments_kernel_py`) where numba
+        imports, else the batched numpy route below; "numpy" forces the latter. The two
+        sum in different orders (1e-16 relative apart).
+        """
+        kernel = compiled_kernel(_panel_moments_kernel_py) if backend == "auto" else None
+        if kernel is not None:
+            return kernel(np.ascontiguousarray(b, dtype=float), self._lo, self._wp,
+                          self.length, _CUT, _PANEL, _U_X, _U_W, n_act, _NCOEF)
         n_b = b.size
         lo = self._lo[:n_act]
         wpiece = self._wp[:n_act]
