@@ -154,3 +154,19 @@ def test_strong_coupling_of_close_modes_is_refused():
     ref = propagate.eigenvalues(propagate.state_matrix(omega, C))[0]
     ref = ref[(ref.imag > 0) & (np.abs(ref) < 2000.0)]
     np.testing.assert_allclose(np.sort(lam[0]), np.sort(ref), rtol=1e-12)
+
+
+def test_basis_with_a_set_at_the_band_edge_mixes_both_paths():
+    t = np.arange(512) * DT
+    kw = {"initial": "modes:2", "bandwidth": 100.0}
+    fast = Forward(BEAM, "viscous+sh", t, **kw)
+    full = Forward(BEAM, "viscous+sh", t, path="full", **kw)
+    theta = _sets(Forward(BEAM, "viscous+sh", t, bandwidth=100.0), 4, seed=9)
+    f2 = fast.modes(np.r_[theta[0, :4], 1.0, 1.0, 1.0, 1.0])[0][1]
+    for f in (fast, full):
+        f.bandwidth = f2 * (1 + MARGIN / 2)  # set 0 at the edge, the others not
+    theta = np.column_stack([theta[:, :4], np.ones((4, 4))])
+    cols = [4, 5, 6, 7]
+    a, b = fast.simulate_basis(theta, cols), full.simulate_basis(theta, cols)
+    assert fast.last_path == "band-modes+full" and a.valid.all()
+    assert _rel(a.y, b.y) <= 1e-9
