@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam.inference.predictive import posterior_predictive
-from bayesbeam.physics.forward import grid_with_holes
+from bayesbeam.physics.inputs import grid_with_holes
 from bayesbeam.stats.families import Uniform
 from bayesbeam.stats.likelihood import standardized_innovations
 from bayesbeam.stats.whiteness import fisher_g, ljung_box

@@ -135,13 +135,8 @@ import numpy as np
 
 from bayesbeam._util import compiled_kernel
 from bayesbeam.physics.beam import Beam
-from bayesbeam.physics.forward import (
-    Forward,
-    ForwardError,
-    Response,
-    grid_with_holes,
-    parameter_columns,
-)
+from bayesbeam.physics.forward import Forward, Response
+from bayesbeam.physics.inputs import ForwardError, grid_with_holes, parameter_columns
 from bayesbeam.physics.models import NONLINEAR, Model, parse_model
 from bayesbeam.physics.propagate import _pick_backend
 from bayesbeam.physics.slow_flow_kernel import _correction_py, _rk4_grid_py

@@ -40,7 +40,7 @@ import scipy.optimize as sopt
 import scipy.signal as ssig
 
 from bayesbeam._util import finite_or_none
-from bayesbeam.physics.forward import grid_with_holes
+from bayesbeam.physics.inputs import grid_with_holes
 from bayesbeam.stats.whiteness import autocorrelation
 
 __all__ = [
