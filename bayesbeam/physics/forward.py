@@ -36,7 +36,9 @@ directly from the modal quadratic eigenproblem and summed in closed form
 state-space reduction of :func:`~bayesbeam.physics.sensor.band_limit` (to rounding,
 1e-9 relative in the tests) without reducing or propagating the ``2n``-dimensional state.
 Sets where that iteration does not apply (a mode at the band edge, strong coupling) are
-propagated in full, and :attr:`Forward.last_path` then reads 'band-modes+full'.
+propagated in full, and :attr:`Forward.last_path` then reads 'band-modes+full'. The
+iteration is a compiled kernel: where numba does not import, the band takes the
+state-space reduction (its numpy route) instead.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from bayesbeam._util import numba_available
 from bayesbeam.physics import propagate
 from bayesbeam.physics.beam import Beam
 from bayesbeam.physics.expm import expm_batched
@@ -626,13 +629,17 @@ class Forward:
         """Return the path :meth:`simulate` takes (the one choice).
 
         'closed-form' (classically damped, fixed structure), 'band-modes' (any other
-        damping seen through a sensor band) or 'full'.
+        damping seen through a sensor band, where numba compiles its kernel) or 'full'.
         """
         if self.path != "auto":
             return "full"
         if self.classical:
             return "closed-form"
-        return "full" if self.bandwidth is None else "band-modes"
+        # The band-modes iteration is a compiled kernel; run as plain Python it would cost
+        # far more than the state-space reduction's numpy route.
+        if self.bandwidth is None or not numba_available():
+            return "full"
+        return "band-modes"
 
     def simulate_basis(self, theta: np.ndarray, columns: list[int]) -> Response:
         """Responses to each of the initial condition's amplitudes alone, per set.

@@ -170,3 +170,14 @@ def test_basis_with_a_set_at_the_band_edge_mixes_both_paths():
     a, b = fast.simulate_basis(theta, cols), full.simulate_basis(theta, cols)
     assert fast.last_path == "band-modes+full" and a.valid.all()
     assert _rel(a.y, b.y) <= 1e-9
+
+
+def test_without_numba_the_band_is_reduced_by_the_state_space_route(monkeypatch):
+    # The iteration run as plain Python would be far slower than the numpy reduction.
+    from bayesbeam.physics import forward as fw
+
+    monkeypatch.setattr(fw, "numba_available", lambda: False)
+    t = np.arange(256) * DT
+    fwd = Forward(BEAM, "viscous+sh", t, bandwidth=100.0)
+    fwd.simulate(_sets(fwd, 2, seed=10))
+    assert fwd.last_path == "full"
