@@ -612,7 +612,7 @@ class Forward:
                 rest = np.flatnonzero(~ok)
                 if rest.size:  # propagate those sets in full (they may still be invalid)
                     yy[rest], ok[rest] = self._full(th[rest])
-                    path += "+full"
+                    path = "full" if rest.size == ok.size else path + "+full"
             self.last_path = path
         # Both paths flag non-finite rows in `ok` themselves (return_valid of the
         # propagator, closed_form_response): no second scan of the output here.

@@ -137,6 +137,9 @@ def test_a_mode_at_the_band_edge_is_propagated_in_full():
     a, b = fwd.simulate(theta), full.simulate(theta)
     assert fwd.last_path == "band-modes+full"
     assert _rel(a.y, b.y) <= 1e-9
+    # Only the set at the edge: no set took the band-modes path, and the record says so.
+    fwd.simulate(theta[:1])
+    assert fwd.last_path == "full"
 
 
 def test_strong_coupling_of_close_modes_is_refused():
