@@ -487,6 +487,11 @@ def progress_note(bar: Any, text: str) -> None:
 # --------------------------------------------------------------------------- intervals
 
 
+#: The posterior summaries' interval: its lower end, median and upper end (a central 90 %
+#: interval), keyed as in every summary (``q05``, ``q50``, ``q95``).
+INTERVAL_QUANTILES: dict[str, float] = {"q05": 0.05, "q50": 0.5, "q95": 0.95}
+
+
 def interval_digits(value: float, lo: float, hi: float, minimum: int = 3,
                     maximum: int = 12) -> int:
     """Significant digits that print ``value``, ``lo`` and ``hi`` as different numbers.

@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import finite_json, fmt_interval, one_blas_thread
+from bayesbeam._util import INTERVAL_QUANTILES, finite_json, fmt_interval, one_blas_thread
 
 __all__ = [
     "DEFAULT_DRAWS",
@@ -80,7 +80,7 @@ _CHUNK = 100
 #: Standard-normal quantile of 0.95: a normal 90 % interval is ``x ± Z90 se``.
 Z90 = 1.6448536269514722
 #: Summary statistics per quantity, as in :meth:`bayesbeam.inference.results.FitResult.summary`.
-_QUANTILES = {"q05": 0.05, "q50": 0.5, "q95": 0.95}
+_QUANTILES = INTERVAL_QUANTILES
 
 
 class ModalError(ValueError):

@@ -1,4 +1,4 @@
-"""Immutable fit results: summaries, ArviZ export (NetCDF) and plots.
+"""Immutable fit results: summaries and ArviZ export (NetCDF); plots in ``result_plots``.
 
 A :class:`FitResult` bundles the :class:`~bayesbeam.stats.sampling.Chain` (samples in the
 sampling space ``u``), the :class:`~bayesbeam.stats.priors.PriorSet` that maps ``u`` to
@@ -42,7 +42,6 @@ import dataclasses
 import datetime as _dt
 import io
 import json
-import logging
 import platform
 import sys
 from collections.abc import Mapping
@@ -54,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from bayesbeam._util import (
+    INTERVAL_QUANTILES,
     SCHEMA_VERSION,
     atomic_path,
     distribution_version,
@@ -68,7 +68,7 @@ from bayesbeam.stats.sampling import Chain
 
 __all__ = ["FitResult", "ResultError", "make_provenance"]
 
-_QUANTILES = {"q05": 0.05, "q50": 0.5, "q95": 0.95}
+_QUANTILES = INTERVAL_QUANTILES
 #: ``units`` of log densities: natural logarithms of densities.
 _NAT = "nat"
 
@@ -141,34 +141,6 @@ def _named_arrays(value: Any, default_name: str) -> dict[str, np.ndarray]:
     if value is None:
         return {}
     return {default_name: np.asarray(value, dtype=float)}
-
-
-class _CornerNotes(logging.Filter):
-    """Count corner's "Too few points to create valid contours" warnings, not print them.
-
-    corner reports a 2-D panel whose samples are too concentrated for its density
-    levels through the root logger, once per panel; the figure says so instead (a
-    note on it), so that a fit's output is not a screen of logging lines.
-    """
-
-    MESSAGE = "Too few points to create valid contours"
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.count = 0
-
-    def filter(self, record: logging.LogRecord) -> bool:  # noqa: D102
-        if record.getMessage() == self.MESSAGE:
-            self.count += 1
-            return False
-        return True
-
-    def __enter__(self) -> _CornerNotes:
-        logging.getLogger().addFilter(self)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        logging.getLogger().removeFilter(self)
 
 
 @dataclass(frozen=True, eq=False)
@@ -858,89 +830,35 @@ class FitResult:
         _require_h5netcdf()
         return cls.from_inference_data(arviz.from_netcdf(path, engine="h5netcdf"))
 
-    # -- plots -----------------------------------------------------------------------
+    # -- plots (bayesbeam.inference.result_plots) ---------------------------------------
     def plot_corner(self, path: str | Path, *, truths: Any = None, dpi: int = 120,
                     names: Any = None) -> Path:
-        """Corner plot of the physical posterior (corner package) with 5/50/95 % marks.
+        """Corner plot of the physical posterior (5/50/95 % marks; corner package).
+
+        See :func:`bayesbeam.inference.result_plots.plot_corner`.
 
         Parameters
         ----------
         path : str or pathlib.Path
-            Image file; the format follows the suffix (``.png``, ``.pdf``, ...).
+            Image file; the format follows the suffix.
         truths : array_like, optional
-            Reference values (e.g. the truth of a synthetic trial), one per plotted
-            parameter; ``None`` entries are skipped.
+            Reference values, one per plotted parameter.
         dpi : int, default 120
         names : sequence of str, optional
-            Plot only these sampled parameters, in this order (e.g. a joint fit's shared
-            and population parameters); default all. One name gives a histogram with
-            the 90 % interval in its title.
+            Plot only these sampled parameters, in this order.
 
         Returns
         -------
         pathlib.Path
-
-        Raises
-        ------
-        ValueError
-            If ``names`` holds a name that is not sampled.
         """
-        import corner
-        from matplotlib.figure import Figure
+        from bayesbeam.inference.result_plots import plot_corner
 
-        from bayesbeam._util import fmt_interval
-
-        names = list(self.names) if names is None else list(names)
-        unknown = [n for n in names if n not in self.names]
-        if unknown or not names:
-            raise ValueError(f"cannot plot {unknown or 'no parameter'}: the sampled "
-                             f"parameters are {list(self.names)}")
-        cols = [self.names.index(n) for n in names]
-        # A bare Figure renders with the Agg canvas and leaves pyplot's global
-        # state and backend untouched (no import-time or global side effects).
-        nd = len(cols)
-        fig = Figure(figsize=(2.2 * nd + 1, 2.2 * nd + 1))
-        flat = self.theta_samples().reshape(-1, self.chain.ndim)[:, cols]
-        if nd == 1:  # corner draws a bare histogram without its interval for one column
-            ax = fig.subplots()
-            ax.hist(flat[:, 0], bins=40, color="0.4")
-            q = np.quantile(flat[:, 0], list(_QUANTILES.values()))
-            for v in q:
-                ax.axvline(v, color="k", ls="--", lw=0.8)
-            if truths is not None and truths[0] is not None:
-                ax.axvline(float(truths[0]), color="C0", lw=1.2)
-            ax.set_xlabel(names[0])
-            mid, lo, hi = fmt_interval(q[1], q[0], q[2])
-            ax.set_title(f"{names[0]} = {mid} [{lo}, {hi}] (90 %)", fontsize=9)
-        else:
-            # A positive parameter spread over more than a decade (a ridge the data do
-            # not close: E and a clamp spring, a damping split) on a log axis: on a
-            # linear one its samples crowd into one bin and corner draws no contour.
-            lo, hi = np.quantile(flat, [0.05, 0.95], axis=0)
-            wide = (lo > 0) & (hi > 10 * lo)
-            with _CornerNotes() as notes:
-                corner.corner(
-                    flat,
-                    labels=[f"{n} (log axis)" if w else n for n, w in zip(names, wide,
-                                                                          strict=True)],
-                    quantiles=list(_QUANTILES.values()),
-                    show_titles=True,
-                    title_fmt=".3g",
-                    truths=None if truths is None else list(truths),
-                    axes_scale=["log" if w else "linear" for w in wide],
-                    fig=fig,
-                )
-            if notes.count:
-                fig.text(0.99, 0.01, f"{notes.count} panel(s) without contours: samples too "
-                         "concentrated for density levels", ha="right", fontsize=7)
-        fig.suptitle(f"{self.model}: posterior ({flat.shape[0]} samples)")
-        path = Path(path)
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi)
-        return path
+        return plot_corner(self, path, truths=truths, dpi=dpi, names=names)
 
     def plot_trace(self, path: str | Path, *, dpi: int = 120, max_walkers: int = 64) -> Path:
-        """Trace plot: walkers' physical values against step, and marginal histograms.
+        """Trace plot: walkers against step, and marginal histograms.
+
+        See :func:`bayesbeam.inference.result_plots.plot_trace`.
 
         Parameters
         ----------
@@ -948,35 +866,14 @@ class FitResult:
             Image file.
         dpi : int, default 120
         max_walkers : int, default 64
-            Draw at most this many walkers (all are used for the histograms).
 
         Returns
         -------
         pathlib.Path
         """
-        from matplotlib.figure import Figure
+        from bayesbeam.inference.result_plots import plot_trace
 
-        c = self.chain
-        th = self.theta_samples()
-        steps = c.burn_in + c.thin * np.arange(c.nsteps)
-        fig = Figure(figsize=(10, 1.9 * c.ndim + 0.8), layout="constrained")
-        axes = fig.subplots(c.ndim, 2, squeeze=False, width_ratios=[4, 1])
-        for j, name in enumerate(self.names):
-            ax, hx = axes[j]
-            ax.plot(steps, th[:, :max_walkers, j], lw=0.4, alpha=0.4, color="k")
-            ax.set_ylabel(name)
-            hx.hist(th[:, :, j].ravel(), bins=50, orientation="horizontal", color="0.4")
-            hx.set_ylim(ax.get_ylim())
-            hx.tick_params(labelleft=False)
-        axes[-1, 0].set_xlabel("step (after burn-in)")
-        fig.suptitle(
-            f"{self.model}: traces (tau_max {c.tau_max:.1f}, ESS min {c.ess_min:.0f}, "
-            f"R-hat max {c.rhat_max:.3f})"
-        )
-        path = Path(path)
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi)
-        return path
+        return plot_trace(self, path, dpi=dpi, max_walkers=max_walkers)
 
 
 def _rebuild(fields: dict[str, Any]) -> FitResult:

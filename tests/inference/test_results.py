@@ -248,7 +248,7 @@ def test_plot_corner_logs_wide_parameters_and_keeps_corner_quiet(tmp_path, caplo
     # E spread over ~4 decades (a ridge the data leave open) goes on a log axis.
     import corner
 
-    from bayesbeam.inference.results import _CornerNotes
+    from bayesbeam.inference.result_plots import _CornerNotes
 
     rng = np.random.default_rng(5)
     u = MU_U + np.array([2.0, 0.2, 0.01]) * rng.standard_normal((NSTEPS, NWALKERS, 3))
