@@ -81,7 +81,7 @@ def _roots_magnitudes(omega: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.
 
 def band_eigenpairs(
     omega: np.ndarray, C: np.ndarray, w_band: float, *, backend: str = "auto"
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Eigen-solutions of the modal system inside the band, per set.
 
     Parameters
@@ -121,7 +121,7 @@ def band_eigenpairs(
     near = slow <= edge_hi
     J = int(np.max(np.flatnonzero(near.any(axis=0)), initial=-1)) + 1
     ok = finite.copy()
-    # A mode with a root inside the margin band, or an in-band mode beyond MAX_ZETA.
+    # A mode with a root within MARGIN of the band edge: in or out is not clear-cut.
     ok &= ~(((slow > edge_lo) & (slow <= edge_hi)) | ((fast > edge_lo) & (fast <= edge_hi))
             ).any(axis=1)
     # Every tried mode underdamped on its diagonal (fast = slow = ω) with ζ <= MAX_ZETA.
