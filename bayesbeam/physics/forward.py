@@ -740,23 +740,18 @@ class Forward:
                                  np.repeat(h, p, axis=0))
         return yy.reshape(n, p, T), ok.reshape(n, p).all(axis=1)
 
-    def _terms_at_stamps(self, lam: np.ndarray,
-                         coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``Re Σ_j coef_j e^{λ_j t}`` at the trial's stamps from t0 → (y (B, T), ok (B,)).
+    def _stamps(self) -> tuple[dict, np.ndarray | None]:
+        """Stamps of the closed-form sums from t0 → (keyword arguments, index or None).
 
-        The same grids as the full path: lead + uniform step, a grid with holes
-        simulated whole, or the stamps themselves.
+        The same grids as the full path: lead + uniform step (the mean step), a grid
+        with holes simulated whole (then ``index`` picks the samples), or the stamps.
         """
         if self.uniform:
-            y, ok, _ = terms_response(lam, coef, uniform=(self._lead, self._dt, self._t.size))
-            return y, ok
+            return {"uniform": (self._lead, self._dt, self._t.size)}, None
         if self._grid is not None:
             step, index = self._grid
-            y, ok, _ = terms_response(lam, coef,
-                                      uniform=(self._lead, step, int(index[-1]) + 1))
-            return y[:, index], ok
-        y, ok, _ = terms_response(lam, coef, times=self._lead + self._t)
-        return y, ok
+            return {"uniform": (self._lead, step, int(index[-1]) + 1)}, index
+        return {"times": self._lead + self._t}, None
 
     def _band_modes(self, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Band-modes path of admissible sets → (y, ok); see the module docstring.
@@ -765,11 +760,8 @@ class Forward:
         (:func:`bayesbeam.physics.modal_coupled.band_eigenpairs`).
         """
         omega, C, phi, z0 = self.modal_initial_state(th)
-        lam, V, norm, keep, ok = band_eigenpairs(omega, C, 2 * np.pi * self.bandwidth)
-        s = np.einsum("n,...nm->...m", self.sensor, phi)
-        coef = band_terms(lam, V, norm, keep, omega, z0, s, self.quantity)
-        y, ok_sum = self._terms_at_stamps(lam, coef)
-        return y, ok & ok_sum
+        y, ok = self._band_modes_basis(omega, C, phi, z0[..., None])
+        return y[:, 0], ok
 
     def _band_modes_basis(self, omega: np.ndarray, C: np.ndarray, phi: np.ndarray,
                           Z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -783,8 +775,11 @@ class Forward:
         s = np.einsum("n,...nm->...m", self.sensor, phi)
         coef = band_terms(lam, V, norm, keep, omega, Z0, s, self.quantity)  # (B, J, p)
         J = lam.shape[1]
-        y, ok_sum = self._terms_at_stamps(np.repeat(lam, p, axis=0),
-                                          np.moveaxis(coef, -1, 1).reshape(n * p, J))
+        kw, index = self._stamps()
+        y, ok_sum, _ = terms_response(np.repeat(lam, p, axis=0),
+                                     np.moveaxis(coef, -1, 1).reshape(n * p, J), **kw)
+        if index is not None:
+            y = y[:, index]
         return y.reshape(n, p, -1), ok & ok_sum.reshape(n, p).all(axis=1)
 
     def _propagate(self, A: np.ndarray, z0: np.ndarray,
@@ -820,18 +815,10 @@ class Forward:
         m = omega.shape[1]
         q0, v0 = z0[:, :m] / omega, z0[:, m:]
         w_band = None if self.bandwidth is None else 2 * np.pi * self.bandwidth
-        args = (omega, c, q0, v0, self._s_modal, self.quantity)
-        # Stamps from t0 (the instant of the initial condition): lead + the same grids as
-        # the full path (uniform step = mean step; a grid with holes simulated whole).
-        if self.uniform:
-            return closed_form_response(
-                *args, uniform=(self._lead, self._dt, self._t.size), w_band=w_band)
-        if self._grid is not None:
-            step, index = self._grid
-            yy, ok = closed_form_response(
-                *args, uniform=(self._lead, step, int(index[-1]) + 1), w_band=w_band)
-            return yy[:, index], ok
-        return closed_form_response(*args, times=self._lead + self._t, w_band=w_band)
+        kw, index = self._stamps()
+        yy, ok = closed_form_response(omega, c, q0, v0, self._s_modal, self.quantity,
+                                      w_band=w_band, **kw)
+        return (yy, ok) if index is None else (yy[:, index], ok)
 
     def modes(
         self, theta: np.ndarray | dict, *, return_overdamped: bool = False

@@ -416,8 +416,7 @@ def closed_form_response(
         omega, c = np.where(ok[:, None], omega, 1.0), np.where(ok[:, None], c, 0.0)
         y0, dy0 = np.where(ok[:, None], y0, 0.0), np.where(ok[:, None], dy0, 0.0)
     lam, coef, near, split = modal_terms(omega, c, y0, dy0, w_band)
-    y, ok_terms, t = terms_response(lam, coef, times=times, uniform=uniform,
-                                    backend=backend, finish=not near.any())
+    y, ok_terms, t = terms_response(lam, coef, times=times, uniform=uniform, backend=backend)
     ok &= ~split & ok_terms
     if near.any():
         y += _near_critical_sum(omega, c, y0, dy0, near, t)
@@ -428,7 +427,6 @@ def closed_form_response(
 def terms_response(
     lam: np.ndarray, coef: np.ndarray, *, times: np.ndarray | None = None,
     uniform: tuple[float, float, int] | None = None, backend: str = "auto",
-    finish: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``y(t) = Re Σ_j coef_j e^{λ_j t}`` at the stamps, with the checks of the closed form.
 
@@ -443,16 +441,13 @@ def terms_response(
         Stamps ``t_first + k dt``, k = 0..n-1 (s).
     backend : {"auto", "numba", "numpy"}
         Route of a uniform grid's sum (:func:`term_sum_uniform`).
-    finish : bool
-        Also flag sets whose output is not finite (False: the caller adds more and
-        checks the sum itself).
 
     Returns
     -------
     y : ndarray, shape (B, T)
     ok : ndarray of bool, shape (B,)
-        False where a kept term's phase ``|Im λ| t`` exceeds 1e12 rad or (with
-        ``finish``) where ``y`` is not finite.
+        False where a kept term's phase ``|Im λ| t`` exceeds 1e12 rad or where ``y`` is
+        not finite.
     t : ndarray, shape (T,)
         The stamps (s).
     """
@@ -478,6 +473,5 @@ def terms_response(
     else:
         y = term_sum_times(lam, coef, t)
     y[:, t == 0] += at_zero[:, None]
-    if finish:
-        ok &= _finite_rows(y)
+    ok &= _finite_rows(y)
     return y, ok, t

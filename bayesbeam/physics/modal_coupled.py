@@ -164,16 +164,16 @@ def band_terms(
         From :func:`band_eigenpairs`, shapes (B, J), (B, J, n), (B, J), (B, J).
     omega : ndarray, shape (B, n)
         Undamped modal frequencies (rad/s).
-    z0 : ndarray, shape (B, 2n) or (B, 2n, p)
-        Initial modal states ``[Ω q0; q0']``; with a last axis, ``p`` of them.
+    z0 : ndarray, shape (B, 2n, p)
+        ``p`` initial modal states ``[Ω q0; q0']`` per set.
     s : ndarray, shape (B, n) or (n,)
         Sensor modal row.
     quantity : {'displacement', 'velocity', 'acceleration'}
 
     Returns
     -------
-    ndarray of complex, shape (B, J) or (B, J, p)
-        ``a_j`` (units of the output); 0 where ``keep`` is False.
+    ndarray of complex, shape (B, J, p)
+        ``a_j`` (units of the output) of each initial state; 0 where ``keep`` is False.
     """
     n = omega.shape[1]
     power = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
@@ -184,10 +184,6 @@ def band_terms(
         Vk = np.where(keep[..., None], V, 0.0)
         out_row = np.einsum("bjn,bn->bj", Vk, s) * safe**power
         top, bot = z0[:, :n], z0[:, n:]
-        if z0.ndim == 2:
-            proj = np.einsum("bjn,bn->bj", Vk, bot) - np.einsum(
-                "bjn,bn->bj", Vk, omega * top) / safe
-            return np.where(keep, 2 * out_row * proj / norm, 0.0)
         proj = np.einsum("bjn,bnp->bjp", Vk, bot) - np.einsum(
             "bjn,bnp->bjp", Vk, omega[..., None] * top) / safe[..., None]
         return np.where(keep[..., None], (2 * out_row / norm)[..., None] * proj, 0.0)
