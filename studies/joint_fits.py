@@ -232,9 +232,9 @@ def real(lengths: list[int], model: str, settings: dict, say, save, *,
     if shared is None:
         shared = ("added_mass",) if "added_mass" in physical else ()
         shared += (where,) if "added_mass_position" in physical else ()
-    # An amplitude-dependent model (drag, friction) is not linear in the modal amplitudes:
-    # they are sampled, not integrated out (fit_joint refuses marginalise=True for it).
-    common = {"n_elements": 10, "marginalise": not parse_model(model).nonlinear, **settings}
+    # fit_joint integrates sigma and the amplitudes out where that is exact and samples
+    # them for an amplitude-dependent model (drag, friction).
+    common = {"n_elements": 10, **settings}
     out: dict = {"lengths_cm": lengths, "model": model, "records": [t.name for t in trials],
                  "initial": initial, "shared": list(shared)}
     say(f"real: joint fit of {len(trials)} records at {lengths} cm ({model}, shared {shared})")

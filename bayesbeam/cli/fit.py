@@ -123,7 +123,9 @@ def register(subparsers: Any) -> None:
                             "log-normal population (median and spread sampled), e.g. c_d,gamma")
     joint.add_argument("--no-marginalise", action="store_true",
                        help="sample each trial's sigma and initial amplitudes instead of "
-                            "integrating them out in closed form")
+                            "integrating them out in closed form (by default they are "
+                            "integrated out wherever that is exact and sampled otherwise, "
+                            "e.g. for drag or friction)")
     sp.set_defaults(func=run)
 
 

@@ -151,7 +151,8 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
         warnings.simplefilter("always", NotConvergedWarning)
         try:
             jf = fit_joint(trials, model, shared=shared, pooled=pooled,
-                           marginalise=not args.no_marginalise, initial=initial, outdir=outdir,
+                           marginalise=False if args.no_marginalise else None,
+                           initial=initial, outdir=outdir,
                            resume=args.resume, progress=True, priors=overrides,
                            sampler_options=opts.helper_options(args),
                            **opts.fit_settings(args))

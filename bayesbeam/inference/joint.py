@@ -32,7 +32,8 @@ An attachment that sits at one distance from the *free end* whatever the clamped
 ``added_mass_position`` (from the clamp) is ``L_i - d``, and the prior of ``d`` is
 uniform over the distances every trial's position prior allows.
 
-Marginalised nuisance parameters (``marginalise=True``, the default): the noise scale
+Marginalised nuisance parameters (by default wherever the closed form is exact; always
+with ``marginalise=True``, never with False): the noise scale
 ``sigma`` and the amplitudes the signal is linear in (``w0``, ``p0`` or ``A_k, B_k``)
 are integrated out of each trial's likelihood in closed form under their own default
 priors (LogUniform on sigma, Uniform on the amplitudes;
@@ -148,8 +149,12 @@ class JointProblem:
     pooled : iterable of str
         Sampled names drawn per trial from a log-normal population; their default
         prior must be on ``log x`` (LogUniform: damping, masses, root spring, b).
-    marginalise : bool
+    marginalise : bool or None
         Integrate sigma and the initial-condition amplitudes out (module docstring).
+        None (the default) does so wherever the closed form is exact and samples them
+        otherwise (an amplitude-dependent model, sigma or an amplitude shared or pooled,
+        a prior on them other than LogUniform / Uniform); :attr:`marginal_note` says
+        which and why. True insists (a :class:`JointError` where it cannot be exact).
     n_elements : int
         Hermite elements of every trial's forward model.
     initial : str or sequence of str
@@ -177,7 +182,7 @@ class JointProblem:
         *,
         shared: Iterable[str] = ("E",),
         pooled: Iterable[str] = (),
-        marginalise: bool = True,
+        marginalise: bool | None = None,
         n_elements: int = 16,
         initial: str | Sequence[str] = "release",
         priors: Mapping[str, Any] | None = None,
@@ -196,7 +201,6 @@ class JointProblem:
         #: One kind for all trials (str), or the kinds per trial (tuple) where they differ.
         self.initial: str | tuple[str, ...] = (
             initials[0] if len(set(initials)) == 1 else tuple(initials))
-        self.marginalise = bool(marginalise)
         self.overrides = dict(priors or {})
         self.problems = tuple(Problem(t, self.model, self.overrides or None,
                                       n_elements=self.n_elements, initial=ini)
@@ -206,10 +210,21 @@ class JointProblem:
                 if all(n in pb.names for pb in self.problems[1:])]
         self.shared = tuple(dict.fromkeys(shared))
         self.pooled = tuple(dict.fromkeys(pooled))
-        margs = [tuple(["sigma", *amplitude_names(pb.names)]) if self.marginalise else ()
-                 for pb in self.problems]
+        margs = [("sigma", *amplitude_names(pb.names)) for pb in self.problems]
         marg = tuple(dict.fromkeys(n for m in margs for n in m))
-        self._check_names(base, marg)
+        obstacle = self._marginal_obstacle(marg)
+        if marginalise and obstacle is not None:
+            raise JointError(obstacle)
+        #: Whether sigma and the amplitudes are integrated out.
+        self.marginalise = obstacle is None if marginalise is None else bool(marginalise)
+        #: One line on how sigma and the amplitudes are handled, and why.
+        self.marginal_note = (
+            "sigma and the amplitudes integrated out in closed form" if self.marginalise
+            else "sigma and the amplitudes sampled (marginalise=False)" if marginalise is False
+            else f"sigma and the amplitudes sampled: {obstacle.split(';')[0]}")
+        if not self.marginalise:
+            margs, marg = [() for _ in self.problems], ()
+        self._check_names(base)
         self.marginalised = marg
         entries: list[tuple[str, Prior]] = []
         for n in self.shared:
@@ -259,7 +274,34 @@ class JointProblem:
         """Whether ``name`` (a trial's column) comes from the shared :data:`TIP_DISTANCE`."""
         return name == "added_mass_position" and TIP_DISTANCE in self.shared
 
-    def _check_names(self, base: Sequence[str], marg: Sequence[str]) -> None:
+    def _marginal_obstacle(self, marg: Sequence[str]) -> str | None:
+        """Why sigma and the amplitudes cannot be integrated out exactly (None: they can)."""
+        for kind, names in (("shared", self.shared), ("pooled", self.pooled)):
+            clash = [n for n in names if n in marg]
+            if clash:
+                return (f"{clash} are {kind}, so they cannot be integrated out of each "
+                        "trial; fit with marginalise=False (--no-marginalise) to sample them")
+        if self.model.nonlinear:
+            # Drag, friction and an amplitude-dependent frequency make the signal depend
+            # on the amplitudes nonlinearly (physics.md §3): the Gaussian integral over
+            # them is no longer exact, and a unit-amplitude basis would be nonsense.
+            return (f"model {self.model.name!r} has amplitude-dependent parts "
+                    f"{list(self.model.nonlinear)}; its signal is not linear in the modal "
+                    "amplitudes, so they cannot be integrated out in closed form; fit with "
+                    "marginalise=False (--no-marginalise)")
+        for pb in self.problems:
+            if not isinstance(pb.priors["sigma"], LogUniform):
+                return (f"sigma of {pb.trial.name!r} has prior "
+                        f"{pb.priors['sigma'].to_dict()}; the closed-form marginal needs "
+                        "LogUniform (or marginalise=False)")
+            for n in amplitude_names(pb.names):
+                if not isinstance(pb.priors[n], Uniform):
+                    return (f"{n} of {pb.trial.name!r} has prior {pb.priors[n].to_dict()}; "
+                            "the closed-form marginal needs a Uniform prior on the "
+                            "amplitudes (or marginalise=False)")
+        return None
+
+    def _check_names(self, base: Sequence[str]) -> None:
         if TIP_DISTANCE in self.shared:
             if "added_mass_position" not in base:
                 raise JointError(f"{TIP_DISTANCE} needs a model with added_mass; model "
@@ -279,12 +321,6 @@ class JointProblem:
                     f"{self.model.name!r}; its parameters are {list(base)} "
                     "(spatial hysteresis is sampled as 'eta')"
                 )
-            clash = [n for n in names if n in marg]
-            if clash:
-                raise JointError(
-                    f"{clash} are integrated out of each trial (marginalise=True) and cannot "
-                    f"be {kind}; fit with marginalise=False (--no-marginalise) to sample them"
-                )
         for n in self.pooled:
             pri = [pb.priors[n] for pb in self.problems]
             if not all(isinstance(p, (LogUniform, LogNormal, HalfNormal)) for p in pri):
@@ -293,30 +329,6 @@ class JointProblem:
                     f"e.g. LogUniform), got {pri[0].to_dict()}; pool a damping, mass or "
                     "spring parameter"
                 )
-        if marg and self.model.nonlinear:
-            # Drag, friction and an amplitude-dependent frequency make the signal depend
-            # on the amplitudes nonlinearly (physics.md §3): the Gaussian integral over
-            # them is no longer exact, and a unit-amplitude basis would be nonsense.
-            raise JointError(
-                f"model {self.model.name!r} has amplitude-dependent parts "
-                f"{list(self.model.nonlinear)}: its signal is not linear in the modal "
-                "amplitudes, so they cannot be integrated out in closed form; fit with "
-                "marginalise=False (--no-marginalise)"
-            )
-        if marg:
-            for pb in self.problems:
-                if not isinstance(pb.priors["sigma"], LogUniform):
-                    raise JointError(
-                        f"sigma of {pb.trial.name!r} has prior {pb.priors['sigma'].to_dict()}; "
-                        "the closed-form marginal needs LogUniform (or marginalise=False)"
-                    )
-                for n in amplitude_names(pb.names):
-                    if not isinstance(pb.priors[n], Uniform):
-                        raise JointError(
-                            f"{n} of {pb.trial.name!r} has prior {pb.priors[n].to_dict()}; "
-                            "the closed-form marginal needs a Uniform prior on the "
-                            "amplitudes (or marginalise=False)"
-                        )
 
     # -- parameter maps ---------------------------------------------------------------
     @property

@@ -117,7 +117,8 @@ class JointFit:
                 d["posterior"][f"{n}[{lb}]"] = post[n]
                 d["units"][f"{n}[{lb}]"] = units[n]
         d["joint"] = {"labels": list(self.labels), "shared": list(pb.shared),
-                      "pooled": list(pb.pooled), "marginalised": list(pb.marginalised)}
+                      "pooled": list(pb.pooled), "marginalised": list(pb.marginalised),
+                      "marginal_note": pb.marginal_note}
         d["adequate"] = self.ok
         d["trials"] = {
             lb: {"trial": r.provenance.get("trial"), "adequacy": r.to_json_dict()["adequacy"],
@@ -343,7 +344,7 @@ def fit_joint(
     *,
     shared: Iterable[str] = ("E",),
     pooled: Iterable[str] = (),
-    marginalise: bool = True,
+    marginalise: bool | None = None,
     seed: int = 0,
     n_elements: int = FIT_DEFAULTS.n_elements,
     refine_mesh: bool = FIT_DEFAULTS.refine_mesh,
@@ -403,6 +404,7 @@ def fit_joint(
     # Build (and so check the names) before any expensive step.
     jp = JointProblem(trials, model, shared=shared, pooled=pooled, marginalise=marginalise,
                       n_elements=n_elements, initial=initial, priors=priors)
+    say(f"joint {model.name}: {jp.marginal_note}")
     starts, meshes = [], []
     for i, pb in enumerate(jp.problems):
         say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]})")
@@ -458,7 +460,8 @@ def fit_joint(
         "total_seconds": time.perf_counter() - t_start,
         "noise": "ar1" if "rho" in jp.problems[0].names else "iid",
         "joint": {"labels": list(jp.labels), "shared": list(jp.shared),
-                  "pooled": list(jp.pooled), "marginalised": list(jp.marginalised)},
+                  "pooled": list(jp.pooled), "marginalised": list(jp.marginalised),
+                  "marginal_note": jp.marginal_note},
         "sampler_coordinates": coords.describe(),
         "spread_move_weight": SPREAD_MOVE_WEIGHT if spreads else 0.0,
         "mesh_per_trial": [m.get("summary", "") for m in meshes],

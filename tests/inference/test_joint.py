@@ -250,7 +250,7 @@ def test_pool_coordinates_round_trip_and_jacobian(trials):
 @pytest.mark.parametrize("kw, match", [
     ({"shared": ("nope",)}, "not parameters of model"),
     ({"shared": ("E",), "pooled": ("E",)}, "both shared and pooled"),
-    ({"shared": ("sigma",)}, "integrated out"),
+    ({"shared": ("sigma",), "marginalise": True}, "cannot be integrated out"),
     ({"shared": (), "pooled": ("w0",), "marginalise": False}, "prior on log"),
 ])
 def test_bad_names_say_how_to_fix(trials, kw, match):
@@ -290,12 +290,26 @@ def test_sampler_coordinates_of_a_joint_fit_round_trip_and_jacobian(trials):
 @pytest.mark.parametrize("model", ["viscous+drag", "viscous+friction"])
 def test_amplitude_dependent_model_is_not_marginalised(trials, model):
     # The closed-form marginal integrates a signal linear in the amplitudes; drag and
-    # friction are not. Refused by default, and the sampled form (the sum of the single
-    # problems) stays available.
+    # friction are not. Refused when asked for, sampled by default (the sum of the single
+    # problems), and the reason is said.
     with pytest.raises(JointError, match="--no-marginalise"):
-        JointProblem(trials, model, shared=("E",), n_elements=NE)
-    jq = JointProblem(trials, model, shared=("E",), marginalise=False, n_elements=NE)
-    assert jq.marginalised == ()
+        JointProblem(trials, model, shared=("E",), marginalise=True, n_elements=NE)
+    jq = JointProblem(trials, model, shared=("E",), n_elements=NE)
+    assert not jq.marginalise and jq.marginalised == ()
+    assert "amplitude-dependent" in jq.marginal_note
+    assert any(n.startswith("sigma[") for n in jq.names)
+
+
+def test_marginalise_default_is_exact_where_it_can_be(trials):
+    # Linear model: integrated out by default; sigma shared: sampled by default (an
+    # obstacle, not an error), and an explicit False is said as such.
+    jp = JointProblem(trials, "viscous", shared=("E",), n_elements=NE)
+    assert jp.marginalise and "integrated out" in jp.marginal_note
+    js = JointProblem(trials, "viscous", shared=("E", "sigma"), n_elements=NE)
+    assert not js.marginalise and "sigma" in js.names
+    assert "shared" in js.marginal_note
+    jf = JointProblem(trials, "viscous", shared=("E",), marginalise=False, n_elements=NE)
+    assert jf.marginal_note.endswith("(marginalise=False)")
 
 
 def test_trials_with_their_own_initial_kinds(trials):

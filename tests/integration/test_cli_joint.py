@@ -57,6 +57,7 @@ def test_joint_fit_json_has_single_fit_keys_and_trial_names(trial_files, tmp_pat
         assert f"w0[{lb}]" in payload["posterior"]  # integrated out, drawn for the report
         assert lb in payload["trials"]
     assert payload["joint"]["shared"] == ["E"]
+    assert payload["joint"]["marginal_note"].startswith("sigma and the amplitudes integrated out")
     assert payload["units"]["E"] == "Pa"
     for f in ("summary.json", "posterior.nc", "corner.png", "trace.png", "fit_rel1.png",
               "run.json"):
