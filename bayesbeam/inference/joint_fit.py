@@ -34,7 +34,8 @@ from bayesbeam.inference.coordinates import (
 )
 from bayesbeam.inference.fit import _sampler_options, checkpoint_path, find_map, walker_scale
 from bayesbeam.inference.joint import TIP_DISTANCE, JointProblem, PoolCoordinates
-from bayesbeam.inference.mesh import converge_mesh
+from bayesbeam.inference.map_cache import MapCache, fingerprint, restore_rng
+from bayesbeam.inference.mesh import converge_mesh, on_mesh
 from bayesbeam.inference.optimum import chain_map, escape_bounds, local_map
 from bayesbeam.inference.results import FitResult, make_provenance
 from bayesbeam.inference.settings import FIT_DEFAULTS, walker_count
@@ -405,11 +406,27 @@ def fit_joint(
     jp = JointProblem(trials, model, shared=shared, pooled=pooled, marginalise=marginalise,
                       n_elements=n_elements, initial=initial, priors=priors)
     say(f"joint {model.name}: {jp.marginal_note}")
+    cache = MapCache(outdir, fingerprint({
+        "model": model.name, "data_sha256": [t.sha256 for t in trials], "seed": seed,
+        "shared": list(jp.shared), "pooled": list(jp.pooled), "marginalise": jp.marginalise,
+        "n_elements": jp.n_elements, "refine_mesh": bool(refine_mesh), "initial": initial,
+        "priors": {n: jp.priors[n].to_dict() for n in jp.names},
+    }), resume=resume, say=say)
     starts, meshes = [], []
     for i, pb in enumerate(jp.problems):
-        say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]})")
-        u, lp = find_map(pb, rng=rng)
-        pb, u, lp, mesh = converge_mesh(pb, u, lp, local_map, refine=refine_mesh)
+        name = f"trial {i + 1}"
+        hit = cache.get(name, pb.ndim, lambda u, m, pb=pb: float(
+            on_mesh(pb, m).log_prob(u[None])[0]))
+        if hit is not None:  # a resumed run: the search's result as it was found
+            say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]}) "
+                f"from {cache.path}")
+            pb, u, mesh = on_mesh(pb, hit["mesh"]), hit["u"], hit["mesh"]
+            restore_rng(rng, hit["rng_state"])
+        else:
+            say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]})")
+            u, lp = find_map(pb, rng=rng)
+            pb, u, lp, mesh = converge_mesh(pb, u, lp, local_map, refine=refine_mesh)
+            cache.put(name, u, lp, mesh=mesh, rng=rng)
         starts.append(pb.priors.to_theta(u[None])[0])
         meshes.append(dict(mesh))
     n_el = max(int(m.get("n_elements", n_elements)) for m in meshes)
@@ -420,10 +437,17 @@ def fit_joint(
     lo, hi = jp.priors.bounds.T
     span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
     x0 = np.clip(x0, lo + 1e-6 * span, hi - 1e-6 * span)
-    say(f"joint {model.name}: joint MAP ({jp.ndim} parameters, {len(trials)} trials)")
     coords = _Coordinates(jp)
-    u_map, lp_map = local_map(jp, jp.priors.to_u(x0[None])[0], coords=coords)
-    u_map, lp_map = escape_bounds(jp, u_map, lp_map, coords=coords)
+    hit = cache.get("joint", jp.ndim, lambda u, m: float(jp.log_prob(u[None])[0]))
+    if hit is not None:
+        say(f"joint {model.name}: joint MAP from {cache.path}")
+        u_map, lp_map = hit["u"], hit["lp"]
+        restore_rng(rng, hit["rng_state"])
+    else:
+        say(f"joint {model.name}: joint MAP ({jp.ndim} parameters, {len(trials)} trials)")
+        u_map, lp_map = local_map(jp, jp.priors.to_u(x0[None])[0], coords=coords)
+        u_map, lp_map = escape_bounds(jp, u_map, lp_map, coords=coords)
+        cache.put("joint", u_map, lp_map, rng=rng)
     if not np.isfinite(lp_map):
         from bayesbeam.inference.fit import FitError
 

@@ -20,14 +20,15 @@ The record (:func:`converge_mesh`) goes into every fit's JSON as ``mesh``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from bayesbeam.inference.problem import Problem
 
-__all__ = ["LADDER", "MAX_DELTA_LOGLIK", "MAX_DELTA_PREDICTION", "converge_mesh", "mesh_check"]
+__all__ = ["LADDER", "MAX_DELTA_LOGLIK", "MAX_DELTA_PREDICTION", "converge_mesh", "mesh_check",
+           "on_mesh"]
 
 #: Meshes tried, coarse to fine (elements). Each step refines h by 1.33-1.5, so the
 #: frequency error of a converging mode falls by 3-5x per step.
@@ -80,6 +81,23 @@ def mesh_check(coarse: Problem, fine: Problem, u: np.ndarray) -> dict[str, Any]:
         "max_delta_prediction_sigma": dpred,
         "converged": bool(abs(dll) <= MAX_DELTA_LOGLIK and dpred <= MAX_DELTA_PREDICTION),
     }
+
+
+def on_mesh(problem: Problem, mesh: Mapping[str, Any] | None) -> Problem:
+    """Return ``problem`` on a mesh record's element count (itself where it is the same).
+
+    Parameters
+    ----------
+    problem : Problem
+    mesh : mapping or None
+        A :func:`converge_mesh` record (``n_elements``); None keeps the problem's mesh.
+
+    Returns
+    -------
+    Problem
+    """
+    n = int((mesh or {}).get("n_elements", problem.n_elements))
+    return problem if n == problem.n_elements else problem.with_mesh(n)
 
 
 def converge_mesh(

@@ -127,6 +127,7 @@ def test_same_seed_same_summary(base):
 def test_interrupted_fit_resumes_to_the_same_chain(base, tmp_path, monkeypatch):
     tr, truth, res, _ = base
     import bayesbeam.inference.coordinates as coordmod
+    import bayesbeam.inference.fit as fitmod
 
     real = coordmod.run_emcee
 
@@ -147,11 +148,20 @@ def test_interrupted_fit_resumes_to_the_same_chain(base, tmp_path, monkeypatch):
         _fit(tr, "viscous", seed=4, outdir=tmp_path)
     assert (tmp_path / "chain.h5").is_file()
     monkeypatch.setattr(coordmod, "run_emcee", real)
+    assert (tmp_path / "map.json").is_file()  # kept as found, before sampling began
+
+    def no_search(*a, **kw):
+        raise AssertionError("a resumed fit searched for the MAP again")
+
+    monkeypatch.setattr(fitmod, "find_map", no_search)
     resumed = _fit(tr, "viscous", seed=4, outdir=tmp_path, resume=True)
     assert resumed.chain.samples.shape == res.chain.samples.shape
     assert resumed.chain.n_steps_total == res.chain.n_steps_total
-    # The checkpoint keeps the RNG state, so the continuation is the same chain.
+    # The checkpoint keeps the RNG state, so the continuation is the same chain; the
+    # stored MAP and generator state make every other output the same too.
     np.testing.assert_array_equal(resumed.chain.samples, res.chain.samples)
+    np.testing.assert_array_equal(resumed.map_u, res.map_u)
+    assert resumed.summary() == res.summary()
     _check_recovery(resumed, truth)
 
 

@@ -161,3 +161,31 @@ def test_pooled_spread_sees_trials_that_differ():
     assert q05 > 0.2 and q05 < true < q95, (q05, q95, true)
     m05, m95 = np.quantile(median, [0.05, 0.95])
     assert m05 < math.exp(np.mean(np.log(gammas))) < m95, (m05, m95)
+
+
+def test_resumed_joint_fit_reuses_its_searches_and_continues_the_chain(same_E, tmp_path,
+                                                                       monkeypatch):
+    # An unfinished joint fit (its step budget spent), resumed with more steps, gives the
+    # chain of one uninterrupted run, without repeating the per-trial and joint MAP
+    # searches (kept in map.json with the generator's state after each).
+    import bayesbeam.inference.joint_fit as jfmod
+    from bayesbeam.stats.sampling import NotConvergedWarning
+
+    kw = {"shared": ("E",), "seed": 5, "progress": False, "target_ess": 10**6, "min_steps": 0}
+    with pytest.warns(NotConvergedWarning):
+        whole = fit_joint(same_E, "viscous", max_steps=300, **kw)
+    with pytest.warns(NotConvergedWarning):
+        fit_joint(same_E, "viscous", max_steps=150, outdir=tmp_path, **kw)
+    assert (tmp_path / "map.json").is_file()
+
+    def no_search(*a, **k):
+        raise AssertionError("a resumed joint fit searched again")
+
+    for name in ("find_map", "local_map", "escape_bounds"):
+        monkeypatch.setattr(jfmod, name, no_search)
+    with pytest.warns(NotConvergedWarning):
+        resumed = fit_joint(same_E, "viscous", max_steps=300, outdir=tmp_path, resume=True,
+                            **kw)
+    assert resumed.result.chain.n_steps_total == 300
+    np.testing.assert_array_equal(resumed.result.chain.samples, whole.result.chain.samples)
+    np.testing.assert_array_equal(resumed.result.map_u, whole.result.map_u)
