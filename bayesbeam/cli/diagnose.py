@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -215,6 +216,10 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(record, indent=2, allow_nan=False)
     write_text_atomic(outdir / "diagnosis.json", text + "\n")
     write_text_atomic(outdir / "report.md", d.narrative())
+    if d.interrupted:  # what is complete is written; the figures would only delay the stop
+        print(f"bayesbeam diagnose: {d.interrupted}: they are in {outdir / 'diagnosis.json'} "
+              "and report.md (run the command again to finish the search)", file=sys.stderr)
+        raise KeyboardInterrupt
     for label, sig in (("baseline", d.signatures_before), ("final", d.signatures_after)):
         if sig is not None:
             fig = plot_signatures(sig, title=f"{trial.name}: {sig.model} ({label})")

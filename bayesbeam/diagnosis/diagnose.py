@@ -383,20 +383,31 @@ def diagnose(
     first = cur
     rounds: list[Round] = []
     final_check: Round | None = None
-    for k in range(1, max_rounds + 1):
-        rnd = _round(eng, cur, k, candidates, confirm_top, log, executor,
-                     show=progress is not None)
-        if rnd.cause == "none":
-            final_check = rnd
-            break
-        rounds.append(rnd)
-        cur = eng.states[rnd.model_after]
-        if refine_mesh:
-            # A refinement needs the current model sampled again: only where a round follows.
-            cur = _converged_mesh(eng, cur, f"mesh after round {k}", log,
-                                  refine=k < max_rounds)
+    interrupted = None
+    try:
+        for k in range(1, max_rounds + 1):
+            rnd = _round(eng, cur, k, candidates, confirm_top, log, executor,
+                         show=progress is not None)
+            if rnd.cause == "none":
+                final_check = rnd
+                break
+            rounds.append(rnd)
+            cur = eng.states[rnd.model_after]
+            if refine_mesh:
+                # A refinement needs the current model sampled again: only where a
+                # round follows.
+                cur = _converged_mesh(eng, cur, f"mesh after round {k}", log,
+                                      refine=k < max_rounds)
+    except KeyboardInterrupt:
+        # Ctrl-C: the complete rounds are kept (minutes each on a whole record); with
+        # none complete there is nothing to keep.
+        if not rounds:
+            raise
+        interrupted = (f"interrupted in round {len(rounds) + 1} after {len(rounds)} "
+                       "complete round(s)")
+        log(f"{interrupted}; keeping them")  # cur: the model after the last complete one
     sig_before = sig_after = None
-    if signatures:
+    if signatures and interrupted is None:
         sig_before = eng.signatures(first)
         sig_after = eng.signatures(cur)
     fits = {name: st.score.result for name, st in eng.states.items() if st.score is not None}
@@ -408,6 +419,7 @@ def diagnose(
                     "screen_tie": SCREEN_TIE, "confirm_window": CONFIRM_WINDOW, "tie": TIE},
         signatures_before=sig_before, signatures_after=sig_after, fits=fits,
         notes=tuple(dict.fromkeys(notes)), seconds=time.perf_counter() - t_start,
+        interrupted=interrupted,
     )
 
 

@@ -193,6 +193,9 @@ class Diagnosis:
     notes : tuple of str
         Reliability messages (unconverged chains, Pareto k, unavailable candidates).
     seconds : float
+    interrupted : str or None
+        Set when the run was interrupted (Ctrl-C) after at least one complete round:
+        which round was cut short. The rounds held are complete; the search did not end.
     """
 
     trial: str
@@ -207,6 +210,7 @@ class Diagnosis:
     fits: Mapping[str, Any] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     seconds: float = 0.0
+    interrupted: str | None = None
 
     @property
     def verdict(self) -> str:
@@ -240,7 +244,8 @@ class Diagnosis:
             ``final_model``, ``baseline``, ``verdict``, ``final_check``,
             ``thresholds``, ``signatures`` (before/after), ``final_posterior``
             (:attr:`final_posterior`), ``final_posterior_units`` (SI unit of each of its
-            entries), ``notes``, ``seconds``.
+            entries), ``notes``, ``seconds``, ``interrupted`` (None, or which round was
+            cut short).
         """
         sig = {
             k: (None if s is None else s.to_json_dict())
@@ -262,6 +267,7 @@ class Diagnosis:
                                       else self.fits[self.final_model].units()),
             "notes": list(self.notes),
             "seconds": finite_or_none(self.seconds),
+            "interrupted": self.interrupted,
         }
 
     def narrative(self) -> str:
@@ -274,6 +280,9 @@ class Diagnosis:
         lines = [f"# Diagnosis of trial `{self.trial}`", ""]
         sb = self.signatures_before
         lines.append(f"Baseline model `{self.baseline}`; final model `{self.final_model}`.")
+        if self.interrupted:
+            lines += ["", f"**Incomplete: {self.interrupted}.** The rounds below are complete; "
+                      "causes the search did not reach may remain."]
         if sb is not None:
             lines += ["", "## What the baseline gets wrong", ""]
             lines += [f"- {s}" for s in describe_signatures(sb)]

@@ -315,6 +315,54 @@ def test_smoke_offset_named_and_cli(tmp_path):
     assert all(json.loads(p.read_text())["schema_version"] == 1 for p in jsons)
 
 
+def test_ctrl_c_keeps_the_complete_rounds(tmp_path, monkeypatch):
+    # Ctrl-C in round 2: round 1 (minutes on a whole record) is kept and written, said
+    # to be incomplete; the command then ends as interrupted. Same small trial as above.
+    import bayesbeam.diagnosis.diagnose as dmod
+
+    t = np.arange(192) / 256.0
+    y = simulate_signal(BEAM, "viscous", {"gamma": GAMMA, "w0": 0.01}, t, n_elements=4)
+    rng = np.random.default_rng(1)
+    rms = np.sqrt(np.mean(y**2))
+    trial = Trial(times=t, values=y + 0.01 * rms * rng.standard_normal(t.size) + 0.1 * rms,
+                  quantity="displacement", beam=BEAM, name="smoke")
+    real = dmod._round
+
+    def cut(eng, cur, index, *a, **kw):
+        if index == 2:
+            raise KeyboardInterrupt
+        return real(eng, cur, index, *a, **kw)
+
+    monkeypatch.setattr(dmod, "_round", cut)
+    small = {"max_rounds": 2, "candidates": ("sensor_offset", "kv"), "n_elements": 4,
+             "refine_mesh": False, "nwalkers": 12, "target_ess": 50.0, "min_steps": 100,
+             "max_steps": 100, "loo_draws": 100}
+    d = diagnose(trial, "viscous", seed=0, signatures=True, **small)
+    assert d.named_causes == ("sensor_offset",) and d.final_model == "viscous+sensor_offset"
+    assert d.interrupted == "interrupted in round 2 after 1 complete round(s)"
+    assert d.signatures_before is None  # not computed after Ctrl-C
+    assert "Incomplete" in d.narrative()
+    assert set(d.final_posterior) == {"E", "gamma", "w0", "sigma", "offset"}
+    path = write_trial(trial, tmp_path / "smoke.toml")
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    args = parser.parse_args(["diagnose", str(path), "--baseline", "viscous", "-o",
+                              str(tmp_path / "out"), "--max-rounds", "2", "--candidates",
+                              "sensor_offset,kv", "--elements", "4", "--fixed-mesh",
+                              "--max-steps", "100", "--target-ess", "50", "--as-is"])
+    with pytest.raises(KeyboardInterrupt):
+        args.func(args)
+    out = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert out["interrupted"].startswith("interrupted in round 2")
+    assert out["named_causes"] == ["sensor_offset"]
+    assert (tmp_path / "out" / "report.md").is_file()
+    # Interrupted before any round completed: nothing to keep, the interrupt goes on.
+    monkeypatch.setattr(dmod, "_round", lambda *a, **kw: (_ for _ in ()).throw(
+        KeyboardInterrupt()))
+    with pytest.raises(KeyboardInterrupt):
+        diagnose(trial, "viscous", seed=0, signatures=False, **small)
+
+
 def test_bad_input():
     trial, _ = make_trial("viscous+kv", BASE, "displacement", duration=0.25)
     with pytest.raises(DiagnoseError, match="unknown cause"):
