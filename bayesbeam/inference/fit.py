@@ -32,7 +32,7 @@ from bayesbeam.inference.coordinates import (
     SamplerCoordinates,
     sample_in_coordinates,
 )
-from bayesbeam.inference.map_cache import MapCache, fingerprint, restore_rng
+from bayesbeam.inference.map_cache import MapCache, fingerprint
 from bayesbeam.inference.mesh import converge_mesh, on_mesh
 from bayesbeam.inference.optimum import best_map, chain_map, diagonal_sd, local_map
 from bayesbeam.inference.parallel import check_helpers
@@ -566,23 +566,22 @@ def fit(
         "initial": problem.initial,
         "priors": {n: problem.priors[n].to_dict() for n in problem.names},
     }), resume=resume, say=say)
-    hit = cache.get("map", problem.ndim, lambda u, m: float(
-        on_mesh(problem, m).log_prob(u[None])[0]))
-    if hit is not None:  # a resumed run: the search's result as it was found
-        if say is not None:
-            say(f"{model.name}: MAP and mesh from {cache.path} (resumed run)")
-        problem, u_map, lp_map, mesh = (on_mesh(problem, hit["mesh"]), hit["u"], hit["lp"],
-                                        hit["mesh"])
-        restore_rng(rng, hit["rng_state"])
-    else:
+
+    def search() -> tuple[np.ndarray, float, dict[str, Any]]:
         t_map = time.perf_counter()
-        u_map, lp_map = find_map(problem, rng=rng)
+        u, lp = find_map(problem, rng=rng)
         if say is not None:
             say(f"{model.name}: MAP found in {time.perf_counter() - t_map:.1f} s; mesh check")
-        problem, u_map, lp_map, mesh = converge_mesh(
-            problem, u_map, lp_map, local_map, refine=refine_mesh, progress=say,
-        )
-        cache.put("map", u_map, lp_map, mesh=mesh, rng=rng)
+        _, u, lp, mesh = converge_mesh(problem, u, lp, local_map, refine=refine_mesh,
+                                       progress=say)
+        return u, lp, mesh
+
+    u_map, lp_map, mesh, recalled = cache.recall(
+        "map", problem.ndim, lambda u, m: float(on_mesh(problem, m).log_prob(u[None])[0]),
+        search, rng)
+    problem = on_mesh(problem, mesh)
+    if recalled and say is not None:
+        say(f"{model.name}: MAP and mesh from {cache.path} (resumed run)")
     ndim = problem.ndim
     nwalkers = walker_count(nwalkers, ndim)
     scale = walker_scale(problem, u_map)

@@ -34,7 +34,7 @@ from bayesbeam.inference.coordinates import (
 )
 from bayesbeam.inference.fit import _sampler_options, checkpoint_path, find_map, walker_scale
 from bayesbeam.inference.joint import TIP_DISTANCE, JointProblem, PoolCoordinates
-from bayesbeam.inference.map_cache import MapCache, fingerprint, restore_rng
+from bayesbeam.inference.map_cache import MapCache, fingerprint
 from bayesbeam.inference.mesh import converge_mesh, on_mesh
 from bayesbeam.inference.optimum import chain_map, escape_bounds, local_map
 from bayesbeam.inference.results import FitResult, make_provenance
@@ -414,19 +414,19 @@ def fit_joint(
     }), resume=resume, say=say)
     starts, meshes = [], []
     for i, pb in enumerate(jp.problems):
-        name = f"trial {i + 1}"
-        hit = cache.get(name, pb.ndim, lambda u, m, pb=pb: float(
-            on_mesh(pb, m).log_prob(u[None])[0]))
-        if hit is not None:  # a resumed run: the search's result as it was found
-            say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]}) "
-                f"from {cache.path}")
-            pb, u, mesh = on_mesh(pb, hit["mesh"]), hit["u"], hit["mesh"]
-            restore_rng(rng, hit["rng_state"])
-        else:
-            say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]})")
+        say(f"joint {model.name}: MAP of trial {i + 1}/{len(trials)} ({jp.labels[i]})")
+
+        def search(pb: Any = pb) -> tuple[np.ndarray, float, dict[str, Any]]:
             u, lp = find_map(pb, rng=rng)
-            pb, u, lp, mesh = converge_mesh(pb, u, lp, local_map, refine=refine_mesh)
-            cache.put(name, u, lp, mesh=mesh, rng=rng)
+            _, u, lp, mesh = converge_mesh(pb, u, lp, local_map, refine=refine_mesh)
+            return u, lp, mesh
+
+        u, _, mesh, recalled = cache.recall(
+            f"trial {i + 1}", pb.ndim,
+            lambda u, m, pb=pb: float(on_mesh(pb, m).log_prob(u[None])[0]), search, rng)
+        pb = on_mesh(pb, mesh)
+        if recalled:
+            say(f"joint {model.name}: ... from {cache.path} (resumed run)")
         starts.append(pb.priors.to_theta(u[None])[0])
         meshes.append(dict(mesh))
     n_el = max(int(m.get("n_elements", n_elements)) for m in meshes)
@@ -438,16 +438,17 @@ def fit_joint(
     span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
     x0 = np.clip(x0, lo + 1e-6 * span, hi - 1e-6 * span)
     coords = _Coordinates(jp)
-    hit = cache.get("joint", jp.ndim, lambda u, m: float(jp.log_prob(u[None])[0]))
-    if hit is not None:
-        say(f"joint {model.name}: joint MAP from {cache.path}")
-        u_map, lp_map = hit["u"], hit["lp"]
-        restore_rng(rng, hit["rng_state"])
-    else:
-        say(f"joint {model.name}: joint MAP ({jp.ndim} parameters, {len(trials)} trials)")
-        u_map, lp_map = local_map(jp, jp.priors.to_u(x0[None])[0], coords=coords)
-        u_map, lp_map = escape_bounds(jp, u_map, lp_map, coords=coords)
-        cache.put("joint", u_map, lp_map, rng=rng)
+    say(f"joint {model.name}: joint MAP ({jp.ndim} parameters, {len(trials)} trials)")
+
+    def joint_search() -> tuple[np.ndarray, float, None]:
+        u, lp = local_map(jp, jp.priors.to_u(x0[None])[0], coords=coords)
+        u, lp = escape_bounds(jp, u, lp, coords=coords)
+        return u, lp, None
+
+    u_map, lp_map, _, recalled = cache.recall(
+        "joint", jp.ndim, lambda u, m: float(jp.log_prob(u[None])[0]), joint_search, rng)
+    if recalled:
+        say(f"joint {model.name}: ... from {cache.path} (resumed run)")
     if not np.isfinite(lp_map):
         from bayesbeam.inference.fit import FitError
 

@@ -134,6 +134,37 @@ class MapCache:
             return None
         return {"u": u, "lp": lp, "mesh": e.get("mesh"), "rng_state": e.get("rng_state")}
 
+    def recall(self, name: str, ndim: int,
+               log_prob: Callable[[np.ndarray, Mapping[str, Any] | None], float],
+               search: Callable[[], tuple[np.ndarray, float, Mapping[str, Any] | None]],
+               rng: np.random.Generator) -> tuple[np.ndarray, float, Any, bool]:
+        """Return the stored result ``name`` where it holds (restoring ``rng``), else search.
+
+        Parameters
+        ----------
+        name, ndim, log_prob
+            As for :meth:`get`.
+        search : callable
+            ``search() -> (u, lp, mesh)``, drawing from ``rng``; its result is stored.
+        rng : numpy.random.Generator
+            The run's generator: restored on a hit, its state stored after a search.
+
+        Returns
+        -------
+        u : ndarray, shape (ndim,)
+        lp : float
+        mesh : dict or None
+        recalled : bool
+            Whether the result came from the file.
+        """
+        hit = self.get(name, ndim, log_prob)
+        if hit is not None:
+            restore_rng(rng, hit["rng_state"])
+            return hit["u"], hit["lp"], hit["mesh"], True
+        u, lp, mesh = search()
+        self.put(name, u, lp, mesh=mesh, rng=rng)
+        return u, lp, mesh, False
+
     def put(self, name: str, u: np.ndarray, lp: float, *, mesh: Mapping[str, Any] | None = None,
             rng: np.random.Generator | None = None) -> None:
         """Store a search's result (the file is rewritten atomically).

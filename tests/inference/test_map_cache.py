@@ -61,3 +61,23 @@ def test_without_a_folder_nothing_is_kept():
     cache = MapCache(None, "k", resume=True)
     cache.put("map", np.zeros(2), 0.0)
     assert cache.path is None and cache.get("map", 2, _quadratic) is not None
+
+
+def test_recall_searches_once_then_restores(tmp_path):
+    calls = []
+
+    def search(rng):
+        calls.append(1)
+        rng.normal(size=3)
+        return np.array([0.5, 0.5]), _quadratic([0.5, 0.5], None), None
+
+    first = np.random.default_rng(2)
+    u, lp, _, recalled = MapCache(tmp_path, "k", resume=False).recall(
+        "joint", 2, _quadratic, lambda: search(first), first)
+    assert not recalled and len(calls) == 1
+    again = np.random.default_rng(2)
+    u2, lp2, _, recalled = MapCache(tmp_path, "k", resume=True).recall(
+        "joint", 2, _quadratic, lambda: search(again), again)
+    assert recalled and len(calls) == 1 and lp2 == lp
+    np.testing.assert_array_equal(u2, u)
+    np.testing.assert_array_equal(again.normal(size=2), first.normal(size=2))
