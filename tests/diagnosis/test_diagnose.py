@@ -253,14 +253,19 @@ def test_root_spring_size_from_frequency_equation():
     assert root_spring_for(drop) == pytest.approx(10 * EI / L, rel=1e-6)
 
 
-def test_smoke_offset_named_and_cli(tmp_path):
-    # Fast: a short trial, two candidates, one round, a tiny sampler budget.
+def _smoke_trial():
+    """A short displacement record with a sensor offset of 10 % of its RMS."""
     t = np.arange(192) / 256.0
     y = simulate_signal(BEAM, "viscous", {"gamma": GAMMA, "w0": 0.01}, t, n_elements=4)
     rng = np.random.default_rng(1)
     rms = np.sqrt(np.mean(y**2))
-    trial = Trial(times=t, values=y + 0.01 * rms * rng.standard_normal(t.size) + 0.1 * rms,
-                  quantity="displacement", beam=BEAM, name="smoke")
+    return Trial(times=t, values=y + 0.01 * rms * rng.standard_normal(t.size) + 0.1 * rms,
+                 quantity="displacement", beam=BEAM, name="smoke")
+
+
+def test_smoke_offset_named_and_cli(tmp_path):
+    # Fast: a short trial, two candidates, one round, a tiny sampler budget.
+    trial = _smoke_trial()
     d = diagnose(trial, "viscous", seed=0, max_rounds=1, candidates=("sensor_offset", "kv"),
                  n_elements=4, refine_mesh=False, nwalkers=12, target_ess=50.0,
                  min_steps=100, max_steps=100, loo_draws=100, signatures=False)
@@ -320,12 +325,7 @@ def test_ctrl_c_keeps_the_complete_rounds(tmp_path, monkeypatch):
     # to be incomplete; the command then ends as interrupted. Same small trial as above.
     import bayesbeam.diagnosis.diagnose as dmod
 
-    t = np.arange(192) / 256.0
-    y = simulate_signal(BEAM, "viscous", {"gamma": GAMMA, "w0": 0.01}, t, n_elements=4)
-    rng = np.random.default_rng(1)
-    rms = np.sqrt(np.mean(y**2))
-    trial = Trial(times=t, values=y + 0.01 * rms * rng.standard_normal(t.size) + 0.1 * rms,
-                  quantity="displacement", beam=BEAM, name="smoke")
+    trial = _smoke_trial()
     real = dmod._round
 
     def cut(eng, cur, index, *a, **kw):
