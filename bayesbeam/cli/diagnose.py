@@ -218,7 +218,8 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(outdir / "report.md", d.narrative())
     if d.interrupted:  # what is complete is written; the figures would only delay the stop
         print(f"bayesbeam diagnose: {d.interrupted}: they are in {outdir / 'diagnosis.json'} "
-              "and report.md (run the command again to finish the search)", file=sys.stderr)
+              f"and report.md; to search on from there, run the command again with "
+              f"--baseline {d.final_model} (and another -o)", file=sys.stderr)
         raise KeyboardInterrupt
     for label, sig in (("baseline", d.signatures_before), ("final", d.signatures_after)):
         if sig is not None:
