@@ -188,6 +188,7 @@ class MapCache:
             "rng_state": None if rng is None else rng.bit_generator.state,
         }
         if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)  # before the sampler makes it
             write_text_atomic(self.path, json.dumps({"key": self.key, "entries": self.entries},
                                                     default=_plain) + "\n")
 

@@ -81,3 +81,10 @@ def test_recall_searches_once_then_restores(tmp_path):
     assert recalled and len(calls) == 1 and lp2 == lp
     np.testing.assert_array_equal(u2, u)
     np.testing.assert_array_equal(again.normal(size=2), first.normal(size=2))
+
+
+def test_the_folder_is_made_when_missing(tmp_path):
+    # A fit writes its MAP before the sampler creates the output folder.
+    cache = MapCache(tmp_path / "new" / "viscous", "k", resume=False)
+    cache.put("map", np.zeros(2), 0.0)
+    assert (tmp_path / "new" / "viscous" / FILE).is_file()
