@@ -214,14 +214,15 @@ class JointProblem:
         marg = tuple(dict.fromkeys(n for m in margs for n in m))
         obstacle = self._marginal_obstacle(marg)
         if marginalise and obstacle is not None:
-            raise JointError(obstacle)
+            raise JointError(f"{obstacle}; fit with marginalise=False (--no-marginalise) to "
+                             "sample them")
         #: Whether sigma and the amplitudes are integrated out.
         self.marginalise = obstacle is None if marginalise is None else bool(marginalise)
         #: One line on how sigma and the amplitudes are handled, and why.
         self.marginal_note = (
             "sigma and the amplitudes integrated out in closed form" if self.marginalise
             else "sigma and the amplitudes sampled (marginalise=False)" if marginalise is False
-            else f"sigma and the amplitudes sampled: {obstacle.split(';')[0]}")
+            else f"sigma and the amplitudes sampled: {obstacle}")
         if not self.marginalise:
             margs, marg = [() for _ in self.problems], ()
         self._check_names(base)
@@ -279,27 +280,38 @@ class JointProblem:
         for kind, names in (("shared", self.shared), ("pooled", self.pooled)):
             clash = [n for n in names if n in marg]
             if clash:
-                return (f"{clash} are {kind}, so they cannot be integrated out of each "
-                        "trial; fit with marginalise=False (--no-marginalise) to sample them")
+                return f"{clash} are {kind}, so they cannot be integrated out of each trial"
         if self.model.nonlinear:
             # Drag, friction and an amplitude-dependent frequency make the signal depend
             # on the amplitudes nonlinearly (physics.md §3): the Gaussian integral over
             # them is no longer exact, and a unit-amplitude basis would be nonsense.
             return (f"model {self.model.name!r} has amplitude-dependent parts "
-                    f"{list(self.model.nonlinear)}; its signal is not linear in the modal "
-                    "amplitudes, so they cannot be integrated out in closed form; fit with "
-                    "marginalise=False (--no-marginalise)")
+                    f"{list(self.model.nonlinear)}: its signal is not linear in the modal "
+                    "amplitudes, so they cannot be integrated out in closed form")
         for pb in self.problems:
             if not isinstance(pb.priors["sigma"], LogUniform):
                 return (f"sigma of {pb.trial.name!r} has prior "
-                        f"{pb.priors['sigma'].to_dict()}; the closed-form marginal needs "
-                        "LogUniform (or marginalise=False)")
+                        f"{pb.priors['sigma'].to_dict()}, and the closed-form marginal needs "
+                        "LogUniform")
             for n in amplitude_names(pb.names):
                 if not isinstance(pb.priors[n], Uniform):
-                    return (f"{n} of {pb.trial.name!r} has prior {pb.priors[n].to_dict()}; "
-                            "the closed-form marginal needs a Uniform prior on the "
-                            "amplitudes (or marginalise=False)")
+                    return (f"{n} of {pb.trial.name!r} has prior {pb.priors[n].to_dict()}, "
+                            "and the closed-form marginal needs a Uniform prior on the "
+                            "amplitudes")
         return None
+
+    def record(self) -> dict[str, Any]:
+        """How the trials are joined, for the summary and the posterior's attributes.
+
+        Returns
+        -------
+        dict
+            ``labels``, ``shared``, ``pooled``, ``marginalised`` (lists of str) and
+            ``marginal_note`` (str).
+        """
+        return {"labels": list(self.labels), "shared": list(self.shared),
+                "pooled": list(self.pooled), "marginalised": list(self.marginalised),
+                "marginal_note": self.marginal_note}
 
     def _check_names(self, base: Sequence[str]) -> None:
         if TIP_DISTANCE in self.shared:

@@ -102,7 +102,7 @@ class JointFit:
         -------
         dict
             :meth:`FitResult.to_json_dict` of the joint result with ``joint``
-            (``labels``, ``shared``, ``pooled``, ``marginalised``), ``adequate`` (all
+            (:meth:`~bayesbeam.inference.joint.JointProblem.record`), ``adequate`` (all
             trials) and ``trials``: per label ``{"trial", "adequacy", "posterior"}``.
         """
         d = self.result.to_json_dict()
@@ -117,9 +117,7 @@ class JointFit:
                     continue
                 d["posterior"][f"{n}[{lb}]"] = post[n]
                 d["units"][f"{n}[{lb}]"] = units[n]
-        d["joint"] = {"labels": list(self.labels), "shared": list(pb.shared),
-                      "pooled": list(pb.pooled), "marginalised": list(pb.marginalised),
-                      "marginal_note": pb.marginal_note}
+        d["joint"] = pb.record()
         d["adequate"] = self.ok
         d["trials"] = {
             lb: {"trial": r.provenance.get("trial"), "adequacy": r.to_json_dict()["adequacy"],
@@ -484,9 +482,7 @@ def fit_joint(
         "log_prob_map": lp_map, "log_prob_map_search": lp_search,
         "total_seconds": time.perf_counter() - t_start,
         "noise": "ar1" if "rho" in jp.problems[0].names else "iid",
-        "joint": {"labels": list(jp.labels), "shared": list(jp.shared),
-                  "pooled": list(jp.pooled), "marginalised": list(jp.marginalised),
-                  "marginal_note": jp.marginal_note},
+        "joint": jp.record(),
         "sampler_coordinates": coords.describe(),
         "spread_move_weight": SPREAD_MOVE_WEIGHT if spreads else 0.0,
         "mesh_per_trial": [m.get("summary", "") for m in meshes],

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import write_text_atomic
+from bayesbeam._util import json_default, write_text_atomic
 
 __all__ = ["FILE", "MapCache", "fingerprint", "restore_rng"]
 
@@ -184,13 +184,13 @@ class MapCache:
         self.entries[name] = {
             "u": [float(x) for x in np.asarray(u, dtype=float)],
             "lp": float(lp),
-            "mesh": None if mesh is None else json.loads(json.dumps(mesh, default=_plain)),
+            "mesh": None if mesh is None else json.loads(json.dumps(mesh, default=json_default)),
             "rng_state": None if rng is None else rng.bit_generator.state,
         }
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)  # before the sampler makes it
             write_text_atomic(self.path, json.dumps({"key": self.key, "entries": self.entries},
-                                                    default=_plain) + "\n")
+                                                    default=json_default) + "\n")
 
 
 def restore_rng(rng: np.random.Generator, state: Mapping[str, Any] | None) -> None:
@@ -206,11 +206,3 @@ def restore_rng(rng: np.random.Generator, state: Mapping[str, Any] | None) -> No
             "bit_generator"]:
         rng.bit_generator.state = dict(state)
 
-
-def _plain(x: Any) -> Any:
-    """JSON form of numpy scalars and arrays."""
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
