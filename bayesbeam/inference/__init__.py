@@ -48,7 +48,7 @@ _EXPORTS = {
     "Problem": ".problem",
     "profile_linear": ".fit",
     "reference_modulus": ".problem",
-    "ResultError": ".results",
+    "ResultError": ".result_files",
     "SamplerCoordinates": ".coordinates",
     "sample_in_coordinates": ".coordinates",
     "scan_E": ".fit",
