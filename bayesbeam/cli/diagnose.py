@@ -6,7 +6,7 @@
         [--max-rounds N] [--candidates kv,tip_mass,...] [--elements N]
         [--initial release|impulse|modes:K] [--decimate Q | --resample DT]
         [--window T0 T1] [--priors PRIORS.toml] [--max-steps N] [--target-ess X]
-        [--jobs N | --scheduler tcp://host:port]
+        [--jobs N | --scheduler tcp://host:port] [--resume]
 
 Runs :func:`bayesbeam.diagnosis.diagnose.diagnose` (procedure and thresholds in its module
 docstring) and writes into ``OUTDIR``:
@@ -26,6 +26,14 @@ docstring) and writes into ``OUTDIR``:
 ``zeta_vs_f.png``            ζ_k against f_k of the baseline and the final model
 ``fits/MODEL/``              ``posterior.nc`` (complete ArviZ tree) and ``summary.json``
                              of the baseline and the final model
+``steps/``                   every finished step (MAP search, Laplace evidence, sampled
+                             and scored model), written as it arrives
+                             (:mod:`bayesbeam.diagnosis.resume`): after Ctrl-C or a
+                             kill, the same command with ``--resume`` takes them and
+                             computes only the rest. Emptied at the start of a run
+                             without ``--resume``; removed once the diagnosis is
+                             complete (a sampled model's file holds its chains: tens of
+                             MB on a whole record)
 ===========================  ==========================================================
 
 ``--json`` prints ``diagnosis.json`` on stdout; otherwise the narrative is printed.
@@ -35,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -44,6 +53,11 @@ from bayesbeam.cli import options as opts
 from bayesbeam.inference.settings import DIAGNOSIS_DEFAULTS
 
 __all__ = ["DiagnoseCLIError", "register", "run"]
+
+
+#: What to do after an interruption (every finished step is in OUTDIR/steps).
+_RESUME_HINT = ("to go on, run the same command again with --resume: the finished MAP "
+                "searches and sampled models are taken from OUTDIR/steps")
 
 
 class DiagnoseCLIError(ValueError):
@@ -99,6 +113,10 @@ def register(subparsers: Any) -> None:
                   "runs (default 0: one per CPU core; 1: in this process; the numbers "
                   "are the same)")
     opts.add_json_option(sp, help="print the record as JSON")
+    sp.add_argument("--resume", action="store_true",
+                    help="take the finished steps of an earlier run into the same OUTDIR "
+                         "(same record and settings) from OUTDIR/steps, and compute only "
+                         "the rest")
     sp.set_defaults(func=run)
 
 
@@ -201,12 +219,21 @@ def run(args: argparse.Namespace) -> int:
     outdir.mkdir(parents=True, exist_ok=True)
     # --jobs/--scheduler: each round's candidate searches and sampling runs in parallel
     # (the same numbers as serial).
-    with one_blas_thread(), make_executor(args.jobs, args.scheduler) as executor:
-        d = diagnose(
-            trial, model, max_rounds=args.max_rounds,
-            candidates=tuple(cands) if cands else CATALOGUE, initial=pre.initial,
-            priors=priors, progress=opts.say, executor=executor, **opts.fit_settings(args),
-        )
+    if args.resume and not any((outdir / "steps").glob("*.pkl")):
+        opts.say(f"--resume: no finished steps in {outdir / 'steps'}; starting from the "
+                 "beginning")
+    try:
+        with one_blas_thread(), make_executor(args.jobs, args.scheduler) as executor:
+            d = diagnose(
+                trial, model, max_rounds=args.max_rounds,
+                candidates=tuple(cands) if cands else CATALOGUE, initial=pre.initial,
+                priors=priors, progress=opts.say, executor=executor,
+                steps_dir=outdir / "steps", resume=args.resume, **opts.fit_settings(args),
+            )
+    except KeyboardInterrupt:
+        print(f"bayesbeam diagnose: interrupted before a round was complete; {_RESUME_HINT}",
+              file=sys.stderr)
+        raise
     record = d.to_json_dict()
     record["preprocessing"] = pre.to_json_dict()
     fitted = _save_fits(trial, d, outdir)
@@ -218,8 +245,7 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(outdir / "report.md", d.narrative())
     if d.interrupted:  # what is complete is written; the figures would only delay the stop
         print(f"bayesbeam diagnose: {d.interrupted}: they are in {outdir / 'diagnosis.json'} "
-              f"and report.md; to search on from there, run the command again with "
-              f"--baseline {d.final_model} (and another -o)", file=sys.stderr)
+              f"and report.md; {_RESUME_HINT}", file=sys.stderr)
         raise KeyboardInterrupt
     for label, sig in (("baseline", d.signatures_before), ("final", d.signatures_after)):
         if sig is not None:
@@ -230,6 +256,7 @@ def run(args: argparse.Namespace) -> int:
         plot_zeta_vs_f(modal, outdir / "zeta_vs_f.png",
                        title=f"{trial.name}: damping ratio against frequency")
     write_model_overlays(trial, _predictions(trial, d, args.seed), outdir, say=opts.say)
+    shutil.rmtree(outdir / "steps", ignore_errors=True)  # complete: nothing to resume
     if args.json:
         print(text)
     else:

@@ -118,14 +118,16 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bayesbeam._util import progress_bar, progress_note
+from bayesbeam._util import distribution_version, progress_bar, progress_note
 
 # The records (and the text of the signatures, which their narrative uses) are re-exported.
 from bayesbeam.diagnosis.records import CandidateScore, Diagnosis, Round
+from bayesbeam.diagnosis.resume import StepStore
 
 # DiagnoseError is defined with the search machinery (which raises it) and re-exported.
 from bayesbeam.diagnosis.search import DiagnoseError, _Engine, _State
@@ -298,6 +300,8 @@ def diagnose(
     signatures: bool = True,
     progress: Callable[[str], None] | None = None,
     executor: Any = None,
+    steps_dir: str | Path | None = None,
+    resume: bool = False,
 ) -> Diagnosis:
     """Show what the baseline gets wrong, name the causes, extend the model, measure the gain.
 
@@ -349,6 +353,15 @@ def diagnose(
         cluster). Each round's candidate MAP searches, and its sampling runs, then run
         in parallel; each job carries the trial's data, its model, starts and seed, so
         the diagnosis is bitwise the serial one. None: everything in this process.
+    steps_dir : path, optional
+        Folder where each finished step (a MAP search, a Laplace evidence, a sampled
+        and scored model) is written as it arrives
+        (:class:`~bayesbeam.diagnosis.resume.StepStore`); emptied first unless
+        ``resume``. None: nothing is kept.
+    resume : bool
+        Take the steps found in ``steps_dir`` instead of computing them again (an
+        interrupted diagnosis resumed with the same record and settings gives the
+        uninterrupted result; ``max_rounds`` and ``candidates`` may differ).
 
     Returns
     -------
@@ -368,13 +381,22 @@ def diagnose(
         raise DiagnoseError(f"max_rounds must be an int >= 1, got {max_rounds!r}")
     if not isinstance(trial, Trial):
         raise DiagnoseError("trial must be a bayesbeam Trial (see bayesbeam.trials.io.read_trial)")
+    if resume and steps_dir is None:
+        raise DiagnoseError("resume=True needs steps_dir, the folder of the interrupted "
+                            "run's steps")
     log = progress or (lambda s: None)
     notes: list[str] = []
+    sampler = {"nwalkers": nwalkers, "target_ess": target_ess, "min_steps": min_steps,
+               "max_steps": max_steps, "loo_draws": loo_draws}
+    store = None
+    if steps_dir is not None:
+        store = StepStore(steps_dir, {
+            "version": distribution_version("bayesbeam"), "data_sha256": trial.sha256, "seed": seed,
+            "initial": initial, "refine_mesh": bool(refine_mesh), "sampler": sampler,
+            "priors": {k: str(v) for k, v in sorted((priors or {}).items())},
+        }, read=resume)
     eng = _Engine(trial, seed=seed, n_elements=n_elements, initial=initial, priors=priors,
-                  sampler={"nwalkers": nwalkers, "target_ess": target_ess,
-                           "min_steps": min_steps, "max_steps": max_steps,
-                           "loo_draws": loo_draws},
-                  notes=notes, log=log)
+                  sampler=sampler, notes=notes, log=log, store=store)
     cur = eng.state(model)
     eng.optimise(cur, eng.starts(cur, None), executor)
     if refine_mesh:
@@ -411,6 +433,8 @@ def diagnose(
         sig_before = eng.signatures(first)
         sig_after = eng.signatures(cur)
     fits = {name: st.score.result for name, st in eng.states.items() if st.score is not None}
+    if store is not None and store.hits:
+        notes.append(f"resumed: {store.hits} finished step(s) taken from {store.folder}")
     return Diagnosis(
         trial=trial.name, baseline=model.name, final_model=cur.problem.model.name,
         named_causes=tuple(r.cause for r in rounds), rounds=tuple(rounds),

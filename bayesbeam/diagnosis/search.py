@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from bayesbeam.diagnosis.resume import StepStore
 from bayesbeam.inference.coordinates import PREBURN_STEPS, SamplerCoordinates, sample_in_coordinates
 from bayesbeam.inference.optimum import SCREEN_POLISHED, best_map, chain_map
 from bayesbeam.inference.parallel import ParallelLogProb
@@ -76,7 +77,8 @@ class _Engine:
 
     def __init__(self, trial: Trial, *, seed: int, n_elements: int, initial: str,
                  priors: Mapping[str, Any] | None, sampler: Mapping[str, Any],
-                 notes: list[str], log: Callable[[str], None]) -> None:
+                 notes: list[str], log: Callable[[str], None],
+                 store: StepStore | None = None) -> None:
         self.trial = trial
         self.seed = seed
         self.n_elements = n_elements
@@ -89,6 +91,22 @@ class _Engine:
         self.states: dict[str, _State] = {}
         self._features: dict[str, float] | None = None
         self._k = 0
+        # Finished steps on disk (a resumable run); their keys hash the inputs below.
+        self.store = store
+
+    def _key(self, st: _State, **inputs: Any) -> str | None:
+        """Key of a step of ``st`` in :attr:`store` (None without one)."""
+        if self.store is None:
+            return None
+        return self.store.key(model=st.problem.model.name,
+                              n_elements=st.problem.n_elements, **inputs)
+
+    def _recall(self, kind: str, key: str | None) -> Any:
+        return None if key is None else self.store.get(kind, key)
+
+    def _keep(self, kind: str, key: str | None, value: Any) -> None:
+        if key is not None:
+            self.store.put(kind, key, value)
 
     # -- problems and MAPs ------------------------------------------------------------
     def state(self, model: Model) -> _State:
@@ -117,6 +135,11 @@ class _Engine:
         """
         from bayesbeam.inference import fit as fitmod
 
+        key = self._key(st, starts=np.asarray(starts, dtype=float), u=st.u, lp=st.lp)
+        hit = self._recall("map", key)
+        if hit is not None:
+            st.u, st.lp, st.ll = hit
+            return
         pb = st.problem
         X = fitmod.clip_to_prior(pb, np.atleast_2d(starts))
         # Each start as it is and after an E scan (which profiles the amplitudes on every
@@ -149,6 +172,7 @@ class _Engine:
             raise DiagnoseError(f"no start of model {pb.model.name!r} has a finite posterior "
                                 "density; check the trial's units and the priors")
         st.ll = float(pb.log_likelihood(st.u[None])[0])
+        self._keep("map", key, (st.u, st.lp, st.ll))
 
     def laplace(self, st: _State) -> None:
         """Laplace log evidence at the state's MAP, once per MAP.
@@ -159,6 +183,11 @@ class _Engine:
 
         if st.laplace_u is not None and np.array_equal(st.laplace_u, st.u):
             return
+        key = self._key(st, u=st.u)
+        hit = self._recall("laplace", key)
+        if hit is not None:
+            st.laplace, st.laplace_u = hit, np.array(st.u, copy=True)
+            return
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # inf - inf on a bound: reported
             try:
@@ -168,6 +197,7 @@ class _Engine:
                 # Laplace is not applicable, recorded NaN.
                 st.laplace = math.nan
         st.laplace_u = np.array(st.u, copy=True)
+        self._keep("laplace", key, st.laplace)
 
     def embed(self, st: _State, warm: Mapping[str, float]) -> None:
         """Take the current MAP, new parameters at neutral values, as ``st``'s MAP if better.
@@ -243,13 +273,29 @@ class _Engine:
                 if on_done is not None:
                     on_done(i, seconds)
             return
-        jobs = [{"trial": self.trial, "engine": self.config(), "model": st.problem.model,
-                 "n_elements": st.problem.n_elements, "starts": starts, "u": st.u,
-                 "lp": st.lp} for st, starts in pairs]
-        for i, (u, lp, ll, laplace, seconds) in enumerate(executor.map(_optimise_job, jobs)):
+        # Steps finished by an interrupted run (a store): taken, not sent out again.
+        keys = [self._key(st, starts=np.asarray(starts, dtype=float), u=st.u, lp=st.lp)
+                for st, starts in pairs]
+        todo = []
+        for i, (st, _) in enumerate(pairs):
+            hit = self._recall("map", keys[i])
+            if hit is None:
+                todo.append(i)
+                continue
+            st.u, st.lp, st.ll = hit
+            self.laplace(st)
+            if on_done is not None:
+                on_done(i, 0.0)
+        jobs = [{"trial": self.trial, "engine": self.config(), "model": pairs[i][0].problem.model,
+                 "n_elements": pairs[i][0].problem.n_elements, "starts": pairs[i][1],
+                 "u": pairs[i][0].u, "lp": pairs[i][0].lp} for i in todo]
+        for i, (u, lp, ll, laplace, seconds) in zip(todo, executor.map(_optimise_job, jobs),
+                                                    strict=True):
             st = pairs[i][0]
             st.u, st.lp, st.ll = u, lp, ll
             st.laplace, st.laplace_u = laplace, np.array(u, copy=True)
+            self._keep("map", keys[i], (u, lp, ll))
+            self._keep("laplace", self._key(st, u=u), laplace)
             if on_done is not None:
                 on_done(i, seconds)
 
@@ -273,15 +319,24 @@ class _Engine:
                 if on_done is not None:
                     on_done(st)
             return
-        jobs = []
+        jobs, keys, hits = [], [], []
         for st in todo:
             self._k += 1
-            jobs.append({"trial": self.trial, "engine": self.config(),
-                         "model": st.problem.model, "n_elements": st.problem.n_elements,
-                         "u": st.u, "seed": int(self.seed) * 1000 + self._k})
-        for st, (score, notes, seconds) in zip(todo, executor.map(_confirm_job, jobs),
-                                               strict=True):
-            self._scored(st, score, notes, seconds)
+            seed = int(self.seed) * 1000 + self._k
+            keys.append(self._key(st, u=st.u, seed=seed))
+            hits.append(self._recall("fit", keys[-1]))
+            if hits[-1] is None:
+                jobs.append({"trial": self.trial, "engine": self.config(),
+                             "model": st.problem.model, "n_elements": st.problem.n_elements,
+                             "u": st.u, "seed": seed})
+        results = iter(executor.map(_confirm_job, jobs)) if jobs else iter(())
+        # In the order given, stored or computed alike: the notes and log lines of a
+        # resumed run are the uninterrupted run's.
+        for st, key, hit in zip(todo, keys, hits, strict=True):
+            if hit is None:
+                hit = next(results)
+                self._keep("fit", key, hit)
+            self._scored(st, *hit)
             if on_done is not None:
                 on_done(st)
 
@@ -296,10 +351,15 @@ class _Engine:
             return st.score
         t0 = time.perf_counter()
         self._k += 1
-        notes: list[str] = []
-        score = self._sample_and_score(st, int(self.seed) * 1000 + self._k, notes,
-                                       helpers=helpers)
-        self._scored(st, score, notes, time.perf_counter() - t0)
+        seed = int(self.seed) * 1000 + self._k
+        key = self._key(st, u=st.u, seed=seed)
+        hit = self._recall("fit", key)
+        if hit is None:
+            notes: list[str] = []
+            score = self._sample_and_score(st, seed, notes, helpers=helpers)
+            hit = (score, notes, time.perf_counter() - t0)
+            self._keep("fit", key, hit)
+        self._scored(st, *hit)
         return st.score
 
     def _sample_and_score(self, st: _State, seed: int, notes: list[str],

@@ -320,7 +320,7 @@ def test_smoke_offset_named_and_cli(tmp_path):
     assert all(json.loads(p.read_text())["schema_version"] == 1 for p in jsons)
 
 
-def test_ctrl_c_keeps_the_complete_rounds(tmp_path, monkeypatch):
+def test_ctrl_c_keeps_the_complete_rounds(tmp_path, monkeypatch, capsys):
     # Ctrl-C in round 2: round 1 (minutes on a whole record) is kept and written, said
     # to be incomplete; the command then ends as interrupted. Same small trial as above.
     import bayesbeam.diagnosis.diagnose as dmod
@@ -346,16 +346,27 @@ def test_ctrl_c_keeps_the_complete_rounds(tmp_path, monkeypatch):
     path = write_trial(trial, tmp_path / "smoke.toml")
     parser = argparse.ArgumentParser()
     register(parser.add_subparsers())
-    args = parser.parse_args(["diagnose", str(path), "--baseline", "viscous", "-o",
-                              str(tmp_path / "out"), "--max-rounds", "2", "--candidates",
-                              "sensor_offset,kv", "--elements", "4", "--fixed-mesh",
-                              "--max-steps", "100", "--target-ess", "50", "--as-is"])
+    argv = ["diagnose", str(path), "--baseline", "viscous", "-o", str(tmp_path / "out"),
+            "--max-rounds", "2", "--candidates", "sensor_offset,kv", "--elements", "4",
+            "--fixed-mesh", "--max-steps", "100", "--target-ess", "50", "--as-is",
+            "--jobs", "1"]
+    args = parser.parse_args(argv)
     with pytest.raises(KeyboardInterrupt):
         args.func(args)
     out = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert out["interrupted"].startswith("interrupted in round 2")
     assert out["named_causes"] == ["sensor_offset"]
     assert (tmp_path / "out" / "report.md").is_file()
+    assert "run the same command again with --resume" in capsys.readouterr().err
+    # The same command with --resume: round 1's fits come from OUTDIR/steps, round 2 runs.
+    monkeypatch.setattr(dmod, "_round", real)
+    args = parser.parse_args([*argv, "--resume"])
+    assert args.func(args) == 0
+    out = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert out.get("interrupted") is None
+    assert out["named_causes"] == ["sensor_offset"]
+    assert any(n.startswith("resumed:") for n in out["notes"])
+    assert not (tmp_path / "out" / "steps").exists()  # complete: removed
     # Interrupted before any round completed: nothing to keep, the interrupt goes on.
     monkeypatch.setattr(dmod, "_round", lambda *a, **kw: (_ for _ in ()).throw(
         KeyboardInterrupt()))
@@ -738,3 +749,67 @@ def test_real_data_study_small(tmp_path, real_data_root):
     # Resumed: the record's output is read, not run again (same row, at once).
     again = _study("real_data").main(small=True, outdir=tmp_path, progress=False)
     assert again["rows"] == out["rows"]
+
+
+
+def test_resume_takes_the_finished_steps_and_gives_the_uninterrupted_result(tmp_path,
+                                                                           monkeypatch):
+    # A diagnosis cut by Ctrl-C in its last sampling run keeps every finished step in
+    # steps_dir; resumed, it samples only that model and ends with the numbers of a run
+    # that was never interrupted.
+    import bayesbeam.diagnosis.search as search_mod
+    from bayesbeam.diagnosis.search import _Engine
+
+    trial = _smoke_trial()
+    small = {"max_rounds": 2, "candidates": ("sensor_offset", "kv"), "n_elements": 4,
+             "refine_mesh": False, "nwalkers": 12, "target_ess": 50.0, "min_steps": 100,
+             "max_steps": 100, "loo_draws": 100, "signatures": False}
+    real = _Engine._sample_and_score
+    calls: list[str] = []
+    stop = {"at": None}
+
+    def counted(self, st, seed, notes, helpers=0):
+        calls.append(st.problem.model.name)
+        if len(calls) == stop["at"]:
+            raise KeyboardInterrupt
+        return real(self, st, seed, notes, helpers=helpers)
+
+    searches: list[int] = []
+    real_search = search_mod.best_map
+    monkeypatch.setattr(search_mod, "best_map",
+                        lambda *a, **k: searches.append(1) or real_search(*a, **k))
+    monkeypatch.setattr(_Engine, "_sample_and_score", counted)
+    whole = diagnose(trial, "viscous", seed=0, **small)
+    n_whole, s_whole = len(calls), len(searches)
+    assert n_whole >= 2  # the baseline and the offset in round 1 at least
+    calls.clear()
+    searches.clear()
+    stop["at"] = n_whole
+    steps = tmp_path / "steps"
+    try:
+        cut = diagnose(trial, "viscous", seed=0, steps_dir=steps, **small)
+        assert cut.interrupted  # after round 1: it is kept
+    except KeyboardInterrupt:
+        pass  # in round 1: nothing complete to keep, but its finished steps are on disk
+    assert len(calls) == n_whole
+    s_cut = len(searches)
+    calls.clear()
+    searches.clear()
+    stop["at"] = None
+    resumed = diagnose(trial, "viscous", seed=0, steps_dir=steps, resume=True, **small)
+    assert len(calls) == 1  # only the sampling run that was cut
+    assert len(searches) == s_whole - s_cut  # only the MAP searches not yet begun
+    assert resumed.interrupted is None
+    assert resumed.named_causes == whole.named_causes
+    assert resumed.final_model == whole.final_model
+    for a, b in zip(resumed.rounds, whole.rounds, strict=True):
+        assert a.delta_log_evidence == b.delta_log_evidence
+        assert a.delta_log_evidence_err == b.delta_log_evidence_err
+    assert resumed.final_posterior == whole.final_posterior
+    assert any(n.startswith("resumed:") for n in resumed.notes)
+    # Without resume the folder is emptied first: everything is computed again.
+    calls.clear()
+    diagnose(trial, "viscous", seed=0, steps_dir=steps, **small)
+    assert len(calls) == n_whole
+    with pytest.raises(DiagnoseError, match="steps_dir"):
+        diagnose(trial, "viscous", resume=True, **small)

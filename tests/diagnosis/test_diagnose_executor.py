@@ -113,3 +113,22 @@ def test_process_pool_gives_the_serial_diagnosis(serial):
     with cf.ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as ex:
         d = diagnose(_trial(), "viscous", executor=ex, **SETTINGS)
     assert _record(d) == _record(d0)
+
+
+def test_resumed_through_the_executor_sends_nothing_finished(serial, tmp_path):
+    # Through the executor, a run that keeps its steps and then one that resumes from
+    # them: the resumed run sends no job at all (every MAP search and sampling run is
+    # taken from the folder) and its record is the serial one, bit for bit.
+    d0, _ = serial
+    steps = tmp_path / "steps"
+    with one_blas_thread():
+        first = diagnose(_trial(), "viscous", executor=_Pickling(), steps_dir=steps,
+                         **SETTINGS)
+        ex = _Pickling()
+        again = diagnose(_trial(), "viscous", executor=ex, steps_dir=steps, resume=True,
+                         **SETTINGS)
+    assert ex.calls == []
+    assert _record(first) == _record(d0)
+    assert json.loads(_record(again))["rounds"] == json.loads(_record(d0))["rounds"]
+    assert again.named_causes == d0.named_causes
+    assert again.final_posterior == d0.final_posterior
