@@ -6,7 +6,9 @@ the joint variants
 
 * ``--shared`` (and ``--pooled``, when given) as asked,
 * the same without the pooling (when ``--pooled`` is given): every trial its own value,
-* nothing shared: every trial on its own,
+* the pooled parameters shared instead (when ``--pooled`` is given): one value for all
+  trials, the pooling's other limit,
+* nothing shared: every trial on its own (when ``--shared`` is given),
 
 and ranks them by bridge-sampling evidence with the package's tie rule; PSIS-LOO over
 all trials' samples is reported beside it. Writes ``comparison.json`` (one record per
@@ -69,7 +71,10 @@ def run_joint(args: argparse.Namespace, models: list[str], error: type[Exception
     trials, _, models, initial = prepare_trials(args, models, error)
     variants = [(shared, pooled)]
     if pooled:
+        # Partial pooling between its two limits: every trial its own value, and one
+        # value for all (a spread of zero, which the pooled fit cannot reach exactly).
         variants.append((shared, ()))
+        variants.append(((*shared, *pooled), ()))
     if shared:
         variants.append(((), ()))
     outdir = Path(args.outdir)

@@ -110,6 +110,35 @@ def test_compare_several_trials_fits_each_as_prepared(trial_files, tmp_path, mon
     assert seen["initial"] == "release" and seen["model"] == "viscous" and seen["n"] == 2
 
 
+def test_compare_pooled_is_ranked_against_both_of_its_limits(trial_files, tmp_path,
+                                                             monkeypatch):
+    # --pooled: the pooled fit, every trial its own value, one value for all trials
+    # (shared), and, with --shared, every trial on its own.
+    import bayesbeam.comparison.joint as cj
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake(trials, model, variants, **kw):
+        seen.extend(variants)
+        raise Stop
+
+    monkeypatch.setattr(cj, "compare_joint", fake)
+    with pytest.raises(Stop):
+        _run(compare_cli, ["compare", *trial_files[:2], "--models", "viscous", "--shared",
+                           "E", "--pooled", "gamma", "-o", str(tmp_path / "c")])
+    assert [(tuple(s), tuple(p)) for s, p in seen] == [
+        (("E",), ("gamma",)), (("E",), ()), (("E", "gamma"), ()), ((), ())]
+    seen.clear()
+    with pytest.raises(Stop):
+        _run(compare_cli, ["compare", *trial_files[:2], "--models", "viscous", "--pooled",
+                           "gamma", "-o", str(tmp_path / "d")])
+    assert [(tuple(s), tuple(p)) for s, p in seen] == [
+        ((), ("gamma",)), ((), ()), (("gamma",), ())]
+
+
 @pytest.mark.slow
 def test_compare_several_trials_ranks_sharing(trial_files, tmp_path, capsys):
     out = tmp_path / "cmp"
