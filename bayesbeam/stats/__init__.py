@@ -20,7 +20,7 @@ _EXPORTS = {
     "bic": ".criteria",
     "bridge_sampling": ".evidence",
     "burn_in": ".convergence",
-    "Chain": ".sampling",
+    "Chain": ".chain",
     "Check": ".convergence",
     "check_convergence": ".convergence",
     "CheckpointBackend": ".checkpoint",
