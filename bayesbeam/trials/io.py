@@ -48,6 +48,7 @@ import numpy as np
 
 from bayesbeam._util import read_toml
 from bayesbeam.physics.beam import QUANTITIES, Beam, BeamError
+from bayesbeam.trials.realdata import RealDataError, record_at
 from bayesbeam.trials.trial import _SI_UNIT, Trial, TrialError, unit_factor
 
 __all__ = ["FORMAT_VERSION", "read_trial", "write_trial"]
@@ -61,6 +62,10 @@ _SIGNAL_REQUIRED = (
     "sensor_position",
 )
 _SIGNAL_OPTIONAL = ("t0", "delimiter", "bandwidth")
+#: Suffixes of data files that are not trial files (a clear error instead of a TOML
+#: syntax error at their first line).
+_DATA_SUFFIXES = (".csv", ".txt", ".dat", ".npy", ".npz", ".lvm", ".xlsx", ".xls", ".mat",
+                  ".h5", ".hdf5", ".tdms", ".wav", ".uff", ".unv")
 _TOP_KEYS = ("name", "format_version", "signal", "beam", "initial", "analysis", "meta")
 FORMAT_VERSION = 1
 
@@ -149,26 +154,48 @@ def _need_str(table: Mapping[str, Any], key: str, where: str) -> str:
 def read_trial(path: str | Path) -> Trial:
     """Read a trial from its TOML file and the CSV file it names.
 
+    A record file of one of the public measured data sets, where it lies in its data
+    set (:func:`bayesbeam.trials.realdata.record_at`), is read as that record's raw
+    trial (``load_enes`` / ``load_hrshm`` with ``raw=True``: the whole record, g
+    converted to m/s², the beam from the data set's PROVENANCE.md), for
+    :mod:`bayesbeam.trials.preprocess` to choose the analysis.
+
     Parameters
     ----------
     path : str or Path
         The trial's TOML file (format in ``data/README.md`` and this module's
-        docstring).
+        docstring), or a public data set's record file.
 
     Returns
     -------
     Trial
-        Values converted to SI units; ``source`` holds the CSV path, its SHA-256 and
-        the unit converted from.
+        Values converted to SI units; ``source`` holds the data file's path, its
+        SHA-256 and the unit converted from.
 
     Raises
     ------
     TrialError
-        For a missing or invalid file, missing or unknown keys, a missing column, an
-        unknown unit, NaN/inf data, non-increasing times, a sensor beyond the free
-        end, or an invalid beam; the message says how to fix it.
+        For a missing or invalid file, a data file given where its trial file is
+        meant, missing or unknown keys, a missing column, an unknown unit, NaN/inf
+        data, non-increasing times, a sensor beyond the free end, or an invalid beam;
+        the message says how to fix it.
     """
     path = Path(path)
+    found = record_at(path)
+    if found is not None:  # a public data set's own file, where it lies
+        record, root = found
+        try:
+            return record.load(root=root, raw=True)
+        except RealDataError as err:
+            raise TrialError(str(err)) from None
+    if path.suffix.lower() in _DATA_SUFFIXES:
+        raise TrialError(
+            f"{path} is a data file, not a trial file: bayesbeam reads a trial file (TOML) "
+            "that names the data file and gives the beam, the sensor position, the "
+            "quantity and the unit (data/README.md; `bayesbeam simulate` writes one). "
+            "The public data sets' record files are read where they lie: "
+            "enes-alu-release/<L>cm_adxl/<record>/accelerometer_data.npy and "
+            "hrshm-steel-impulse/timeseries_data.lvm")
     try:
         doc = read_toml(path, what="trial file", error=TrialError)
     except UnicodeDecodeError as err:  # tomllib decodes the bytes itself

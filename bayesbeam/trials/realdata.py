@@ -55,6 +55,7 @@ __all__ = [
     "list_real_datasets",
     "load_enes",
     "load_hrshm",
+    "record_at",
     "resolve_root",
 ]
 
@@ -197,6 +198,45 @@ def list_real_datasets(root: str | Path = DEFAULT_ROOT) -> tuple[RealRecord, ...
     if lvm.is_file():
         recs.append(RealRecord(HRSHM, lvm.stem, lvm, {}))
     return tuple(recs)
+
+
+def record_at(path: str | Path) -> tuple[RealRecord, Path] | None:
+    """Recognise a public data set's record file where it lies.
+
+    The file is recognised by its place in the data set's documented layout (its own
+    name and the folders above it), not by its content: the beam, the sensor and the
+    units come from the data set's PROVENANCE.md, so a file of the same format from
+    another beam must not be read as one of these (write a trial file for it instead).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``ROOT/enes-alu-release/<L>cm_adxl/<folder>/accelerometer_data.npy`` (or that
+        folder), or ``ROOT/hrshm-steel-impulse/timeseries_data.lvm``.
+
+    Returns
+    -------
+    (RealRecord, Path) or None
+        The record and the real-data folder ``ROOT`` to load it from; None for any
+        other path.
+    """
+    p = Path(path)
+    if p.is_dir() and (p / "accelerometer_data.npy").is_file():
+        p = p / "accelerometer_data.npy"
+    if not p.is_file():
+        return None
+    p = p.resolve()
+    if p.name == "timeseries_data.lvm" and p.parent.name == HRSHM:
+        return RealRecord(HRSHM, p.stem, p, {}), p.parent.parent
+    m = re.fullmatch(r"(\d+)cm_adxl", p.parent.parent.name)
+    if p.name == "accelerometer_data.npy" and m and p.parents[2].name == ENES:
+        root = p.parents[3]
+        length_cm = int(m.group(1))
+        files = [f.resolve() for f in _enes_records(root).get(length_cm, [])]
+        if p in files:
+            return (RealRecord(ENES, p.parent.name, p,
+                               {"length_cm": length_cm, "index": files.index(p)}), root)
+    return None
 
 
 # --------------------------------------------------------------------------------------

@@ -76,6 +76,10 @@ def test_inspect_bad_input_exits_2_with_one_line(trial_toml, tmp_path, capsys, a
     assert match in err
     code, _, err = _run(capsys, "inspect", tmp_path / "none.toml", "-o", tmp_path)
     assert code == 2 and err.count("\n") == 1
+    data = tmp_path / "record.csv"  # a data file where its trial file is meant
+    data.write_text("t,a\n0,1\n")
+    code, _, err = _run(capsys, "inspect", data, "-o", tmp_path)
+    assert code == 2 and err.count("\n") == 1 and "is a data file, not a trial file" in err
 
 
 def test_overlay_hook_draws_extra_curves(tmp_path):
@@ -107,3 +111,16 @@ def test_inspect_whole_real_record(real_data_root, tmp_path, capsys):
         assert b["f1"] == pytest.approx(peak, rel=0.05)
     assert rec["wall_time_s"] < 60
     assert "smallest amplitude bin" in out
+
+
+@pytest.mark.slow
+def test_inspect_reads_a_public_record_where_it_lies(real_data_root, tmp_path, capsys):
+    # The record's own folder, no trial file: the raw record, the analysis chosen.
+    folder = min(p for p in (real_data_root / "enes-alu-release" / "30cm_adxl").iterdir()
+                 if p.is_dir())
+    code, out, err = _run(capsys, "inspect", folder, "-o", tmp_path)
+    assert code == 0
+    rec = json.loads((tmp_path / "inspect.json").read_text())
+    assert rec["trial"] == "enes-alu-30cm-0" and rec["quantity"] == "acceleration"
+    assert rec["preprocessing"]["start"] > rec["preprocessing"]["release"]
+    assert "preprocessing: analysis span" in err and "largest amplitude bin" in out

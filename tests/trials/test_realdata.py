@@ -16,9 +16,10 @@ from bayesbeam.trials.realdata import (
     list_real_datasets,
     load_enes,
     load_hrshm,
+    record_at,
     resolve_root,
 )
-from bayesbeam.trials.trial import STANDARD_GRAVITY
+from bayesbeam.trials.trial import STANDARD_GRAVITY, TrialError
 
 
 def _spectral_peak(trial, fmin, fmax):
@@ -141,3 +142,36 @@ def test_real_trial_write_read(hrshm, tmp_path):
     np.testing.assert_allclose(back.values, tr.values, rtol=4e-16, atol=0)
     assert back.meta["derived_from"]["sha256"] == hrshm.sha256
     assert back.meta["licence"].startswith("CC BY-SA 4.0")
+
+
+def test_record_files_are_read_where_they_lie(real_data_root, tmp_path):
+    # read_trial takes a record file (or an enes record's folder) in its data set's
+    # layout as the loader's raw trial, the same one a written trial file gives back.
+    recs = list_real_datasets(real_data_root)
+    enes = next(r for r in recs if r.kwargs.get("length_cm") == 40 and r.kwargs["index"] == 1)
+    steel = next(r for r in recs if r.dataset == "hrshm-steel-impulse")
+    for rec, given in ((enes, enes.path), (enes, enes.path.parent), (steel, steel.path)):
+        found, root = record_at(given)
+        assert found == rec and root == real_data_root.resolve()
+        raw = rec.load(real_data_root, raw=True)
+        got = read_trial(given)
+        assert got.name == raw.name and got.meta["raw"] and got.beam == raw.beam
+        np.testing.assert_array_equal(got.values, raw.values)
+        np.testing.assert_array_equal(got.times, raw.times)
+        back = read_trial(write_trial(raw, tmp_path / f"{raw.name}.toml", unit="g"))
+        np.testing.assert_array_equal(got.values, back.values)
+        assert got.sensor_position == back.sensor_position
+    # Recognised by place, not by format: a copy elsewhere has no beam to go with it.
+    copy = tmp_path / "accelerometer_data.npy"
+    copy.write_bytes(enes.path.read_bytes())
+    assert record_at(copy) is None and record_at(tmp_path) is None
+    with pytest.raises(TrialError, match="is a data file, not a trial file.*trial file "
+                                         r"\(TOML\).*accelerometer_data.npy"):
+        read_trial(copy)
+    # A file in the layout but not of the data set: the loader's message, as a TrialError.
+    fake = tmp_path / "hrshm-steel-impulse" / "timeseries_data.lvm"
+    fake.parent.mkdir()
+    fake.write_text("time,value\n0,1\n")
+    assert record_at(fake) is not None
+    with pytest.raises(TrialError, match="End_of_Header"):
+        read_trial(fake)
