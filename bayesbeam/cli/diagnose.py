@@ -26,8 +26,8 @@ docstring) and writes into ``OUTDIR``:
 ``zeta_vs_f.png``            ζ_k against f_k of the baseline and the final model
 ``fits/MODEL/``              ``posterior.nc`` (complete ArviZ tree) and ``summary.json``
                              of the baseline and the final model
-``steps/``                   every finished step (MAP search, Laplace evidence, sampled
-                             and scored model), written as it arrives
+``steps/``                   every finished step (MAP search, Laplace evidence, mesh
+                             check, sampled and scored model), written as it arrives
                              (:mod:`bayesbeam.diagnosis.resume`): after Ctrl-C or a
                              kill, the same command with ``--resume`` takes them and
                              computes only the rest. Emptied at the start of a run
@@ -57,7 +57,7 @@ __all__ = ["DiagnoseCLIError", "register", "run"]
 
 #: What to do after an interruption (every finished step is in OUTDIR/steps).
 _RESUME_HINT = ("to go on, run the same command again with --resume: the finished MAP "
-                "searches and sampled models are taken from OUTDIR/steps")
+                "searches, mesh checks and sampled models are taken from OUTDIR/steps")
 
 
 class DiagnoseCLIError(ValueError):

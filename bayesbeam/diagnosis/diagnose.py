@@ -463,21 +463,34 @@ def _converged_mesh(eng: _Engine, cur: _State, label: str, log: Callable[[str], 
     on refinement the current model is re-optimised on the finer mesh, and sampled
     again in the next round (its score on the coarse mesh is dropped). With ``refine``
     False (no round follows) the check is only reported.
+
+    A resumable run keeps the check's outcome as a step (kind ``"mesh"``, keyed by the
+    model, its mesh and MAP to the last bit): a resumed run takes it instead of
+    evaluating the finer meshes again.
     """
     from bayesbeam.inference.fit import local_map
     from bayesbeam.inference.mesh import converge_mesh
 
-    pb, u, _, mesh = converge_mesh(
-        cur.problem, cur.u, cur.ll, local_map, refine=refine, progress=log,
-        kept_because="(the final model: no round followed to refine it; raise max_rounds)")
+    key = eng._key(cur, u=cur.u, refine=refine)
+    hit = eng._recall("mesh", key)
+    if hit is None:
+        pb, u, _, mesh = converge_mesh(
+            cur.problem, cur.u, cur.ll, local_map, refine=refine, progress=log,
+            kept_because="(the final model: no round followed to refine it; raise "
+                         "max_rounds)")
+        hit = (pb.n_elements, u, mesh)
+        eng._keep("mesh", key, hit)
+    else:
+        log(f"mesh: {hit[2]['summary']} (taken from the interrupted run's steps)")
+    n_elements, u, mesh = hit
     eng.notes.append(f"{label}: {mesh['summary']}")
-    if pb.n_elements == eng.n_elements:
+    if n_elements == eng.n_elements:
         return cur
     model = cur.problem.model
-    eng.n_elements = pb.n_elements
+    eng.n_elements = n_elements
     del eng.states[model.name]
     new = eng.state(model)
-    eng.optimise(new, pb.theta(u[None]))
+    eng.optimise(new, new.problem.theta(u[None]))
     return new
 
 

@@ -1,10 +1,11 @@
 """The finished steps of a diagnosis kept on disk, so that an interrupted one resumes.
 
 A diagnosis of a whole record runs for tens of minutes: each round screens every
-candidate (MAP searches and Laplace evidences) and samples the best few (emcee, bridge
-sampling, PSIS-LOO). Each of those steps is a deterministic function of its inputs
-(the record, the model, the mesh, the start points or the MAP, and the seed: the
-searches use no random numbers and each sampling run has its own seed,
+candidate (MAP searches and Laplace evidences), samples the best few (emcee, bridge
+sampling, PSIS-LOO) and checks the mesh at the new model's MAP. Each of those steps is
+a deterministic function of its inputs (the record, the model, the mesh, the start
+points or the MAP, and the seed: the searches and mesh checks use no random numbers
+and each sampling run has its own seed,
 :class:`~bayesbeam.diagnosis.search._Engine`). :class:`StepStore` writes each finished
 step's result to ``FOLDER/KIND-KEY.pkl`` as it arrives, under a key that hashes all of
 those inputs together with the run's settings; ``bayesbeam diagnose --resume`` replays

@@ -813,3 +813,36 @@ def test_resume_takes_the_finished_steps_and_gives_the_uninterrupted_result(tmp_
     assert len(calls) == n_whole
     with pytest.raises(DiagnoseError, match="steps_dir"):
         diagnose(trial, "viscous", resume=True, **small)
+
+
+def test_resumed_run_takes_the_mesh_checks(tmp_path, monkeypatch):
+    # The mesh checks between rounds are steps too: resumed, the run evaluates no finer
+    # mesh again, refines as the uninterrupted one did and ends with its numbers.
+    import bayesbeam.inference.mesh as mesh_mod
+
+    t = np.arange(192) / 256.0
+    y = simulate_signal(BEAM, "viscous", {"gamma": GAMMA, "w0": 0.01}, t, n_elements=16)
+    rms = np.sqrt(np.mean(y**2))
+    noise = 1e-3 * rms * np.random.default_rng(1).standard_normal(t.size)
+    trial = Trial(times=t, values=y + noise + 0.1 * rms, quantity="displacement",
+                  beam=BEAM, name="mesh")
+    small = {"max_rounds": 1, "candidates": ("sensor_offset",), "n_elements": 2,
+             "refine_mesh": True, "nwalkers": 12, "target_ess": 50.0, "min_steps": 100,
+             "max_steps": 100, "loo_draws": 100, "signatures": False}
+    checks: list[int] = []
+    real = mesh_mod.converge_mesh
+    monkeypatch.setattr(mesh_mod, "converge_mesh",
+                        lambda *a, **k: checks.append(1) or real(*a, **k))
+    steps = tmp_path / "steps"
+    whole = diagnose(trial, "viscous", seed=0, steps_dir=steps, **small)
+    assert len(checks) == 2  # the baseline's, and after the round
+    mesh_notes = [n for n in whole.notes if n.startswith("mesh")]
+    # The baseline's check refined the 2-element start (the resumed run must do so too).
+    assert mesh_notes[0].startswith("mesh: ") and "converged" in mesh_notes[0]
+    assert not mesh_notes[0].startswith("mesh: 2 elements")
+    checks.clear()
+    again = diagnose(trial, "viscous", seed=0, steps_dir=steps, resume=True, **small)
+    assert checks == []
+    assert [n for n in again.notes if n.startswith("mesh")] == mesh_notes
+    assert again.named_causes == whole.named_causes
+    assert again.final_posterior == whole.final_posterior
