@@ -153,3 +153,18 @@ def test_compare_several_trials_ranks_sharing(trial_files, tmp_path, capsys):
     assert rec["best"] == "viscous | shared E"
     assert all(math.isfinite(v["log_z_err"]) for v in rec["variants"])
     assert (out / "comparison.txt").is_file()
+
+
+def test_unconverged_pooled_fit_says_what_mixes_slowly(trial_files, tmp_path, capsys):
+    # A pooled fit cut short: the warning, then the spreads' intervals and the limit to
+    # try (sharing) with the command that ranks the two.
+    assert _run(fit_cli, ["fit", *trial_files[:2], "--model", "viscous", "--shared", "E",
+                          "--pooled", "gamma", "-o", str(tmp_path / "p"), "--elements", "4",
+                          "--max-steps", "100", "--target-ess", "1000",
+                          "--fixed-mesh"]) == 0
+    err = capsys.readouterr().err
+    assert "NOT CONVERGED" in err
+    payload = json.loads((tmp_path / "p" / "summary.json").read_text())
+    q = payload["posterior"]["gamma_spread"]
+    assert f"gamma_spread {q['q50']:.3g} [{q['q05']:.3g}, {q['q95']:.3g}]" in err
+    assert "--shared E,gamma" in err and "--shared E --pooled gamma" in err
