@@ -91,26 +91,26 @@ def prepare_trials(args: argparse.Namespace, models: list[str], error: type[Exce
 
 
 def _pooled_hint(pooled: Sequence[str], shared: Sequence[str],
-                 posterior: dict[str, dict[str, float]]) -> str:
+                 posterior: dict[str, dict[str, float]], compare: str) -> str:
     """Return the line after an unconverged pooled fit: what mixes slowly, what to try.
 
     A pooled parameter whose spread is small against what one trial resolves of it is a
     funnel for the sampler (studies/README.md: beam 1's pooled damping laws took
     39,100 steps, sharing them 4,000), so the spreads' intervals are printed for the
-    user to judge, with the limit to compare against.
+    user to judge, with the limit to compare against (``compare``: the start of the
+    ``bayesbeam compare`` command line for these trials and model).
     """
     spreads = "; ".join(
         f"{n}_spread {q['q50']:.3g} [{q['q05']:.3g}, {q['q95']:.3g}]"
         for n in pooled for q in [posterior[f"{n}_spread"]])
     names = ",".join(pooled)
-    now = ",".join(shared)
+    now = f"--shared {','.join(shared)} " if shared else ""
     return (f"note: pooled parameters mix slowly where a spread (sd of the log between "
             f"trials) is small against what one trial resolves: {spreads} (median, 90 % "
             f"interval). Where an interval reaches near zero, --shared "
             f"{','.join([*shared, *pooled])} fits that limit in far fewer steps, and "
-            f"`bayesbeam compare TRIALS --models MODEL --shared {now or 'NAMES'} --pooled "
-            f"{names}` ranks pooled, per-trial and shared by evidence; or raise "
-            "--max-steps")
+            f"`{compare} {now}--pooled {names}` ranks pooled, per-trial and shared by "
+            "evidence; or raise --max-steps")
 
 
 def _file_label(label: str) -> str:
@@ -223,7 +223,10 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
         why = reasons[0] if reasons else "convergence criteria not met"
         print(f"WARNING: joint {model.name}: NOT CONVERGED: {why}", file=sys.stderr)
         if jp.pooled:
-            print(_pooled_hint(jp.pooled, jp.shared, payload["posterior"]), file=sys.stderr)
+            compare = (f"bayesbeam compare {' '.join(map(str, args.trial))} --models "
+                       f"{model.name}")
+            print(_pooled_hint(jp.pooled, jp.shared, payload["posterior"], compare),
+                  file=sys.stderr)
     if not jf.ok:
         bad = [lb for lb, v in zip(jf.labels, jf.trials, strict=True) if not v.adequacy.get("ok")]
         print(f"WARNING: joint {model.name}: the model does not reproduce {bad} to their noise "
