@@ -77,7 +77,8 @@ def register(subparsers: Any) -> None:
         help="name the cause of a model discrepancy from a catalogue and measure the gain",
         description=(
             "Fit the baseline, try every catalogue extension (kv, sh, tip_mass, added_mass, "
-            "root_spring, stiffness_gradient, drag, friction, amplitude_stiffness, ar1_noise, "
+            "root_spring, stiffness_gradient, drag, friction, amplitude_stiffness, "
+            "sensor_quadratic, ar1_noise, "
             "sensor_offset), name "
             "the one "
             "with the largest significant gain in log evidence (Δ log Z - 2 err > 3 nats), "

@@ -18,6 +18,8 @@ cause                     model extension (parameters)
                           the amplitude falls
 ``amplitude_stiffness``   f1 moving with the mode-1 tip amplitude (``f1_slope``, Hz/m;
                           reported in Hz per mm; negative: softening)
+``sensor_quadratic``      a sensor reading y + k2 y² (``k2``, per signal unit): lines
+                          at twice the modes' frequencies, in phase with y²
 ``ar1_noise``             AR(1) correlated residuals (``rho``)
 ``sensor_offset``         constant offset of the signal (``offset``)
 ========================  ===========================================================
@@ -72,7 +74,8 @@ Procedure of one round (current model M)
    reported (:func:`signature_support`): f2/f1 shift for the structural causes,
    mode-1 decay rate vs amplitude for ``drag`` (faster at large amplitude) and
    ``friction`` (faster at small amplitude), f1 against amplitude beyond the model's for
-   ``amplitude_stiffness``, Ljung–Box whiteness and lag-1
+   ``amplitude_stiffness``, the residual's projection on the square of the model's
+   signal for ``sensor_quadratic``, Ljung–Box whiteness and lag-1
    autocorrelation for ``ar1_noise``, mean / low-frequency residual for
    ``sensor_offset``, frequency dependence of the modal damping for ``kv``/``sh``.
 5. **Measure the gain**: Δ log Z ± err, Δ ELPD ± se, RMS residual and 90 %
@@ -148,7 +151,7 @@ __all__ = [
 #: The catalogue of causes, in the order they are tried (names are model parts).
 CATALOGUE: tuple[str, ...] = (
     "kv", "sh", "tip_mass", "added_mass", "root_spring", "stiffness_gradient", "drag",
-    "friction", "amplitude_stiffness", "ar1_noise", "sensor_offset",
+    "friction", "amplitude_stiffness", "sensor_quadratic", "ar1_noise", "sensor_offset",
 )
 #: A cause is significant when Δ log Z - 2 err exceeds this (nats; Bayes factor > 20).
 SIGNIFICANCE = 3.0
@@ -227,6 +230,14 @@ def signature_support(cause: str, sig: Any) -> tuple[bool | None, str]:
         return bool(abs(diff) > 2 * err), (
             f"f1 {way} with the mode-1 tip amplitude by {1e3 * diff:+.3g} ± {1e3 * err:.2g} "
             "mHz per mm beyond the model (falls: softening, rises: hardening)")
+    if cause == "sensor_quadratic":
+        k2, se = sig.quadratic_k2, sig.quadratic_k2_se
+        if not (math.isfinite(k2) and math.isfinite(se)):
+            return None, "residual against the square of the signal not measurable"
+        return bool(abs(k2) > 2 * se), (
+            f"residual against the square of the model's signal: k2 = {k2:.3g} ± {se:.2g} "
+            "per signal unit (a quadratic sensor, y + k2 y², leaves lines at twice the "
+            "modes' frequencies in phase with y² and a mean shift)")
     if cause == "ar1_noise":
         return bool(not sig.white and sig.lag1 > 0.2), (
             f"residuals autocorrelated: lag-1 {sig.lag1:.2f}, Ljung–Box p = {sig.ljung_box_p:.2g}")

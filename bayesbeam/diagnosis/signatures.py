@@ -211,6 +211,10 @@ class Signatures:
     state_change : dict or None
         The record's change-of-state test (data only, whatever the model:
         :meth:`bayesbeam.trials.state_change.StateChange.to_json_dict`).
+    quadratic_k2, quadratic_k2_se : float
+        Least-squares coefficient of the residual on the square of the prediction
+        (with a constant; :func:`quadratic_projection`) and its se, per signal unit:
+        what a quadratic sensor (``sensor_quadratic``, reading ``y + k2 y²``) leaves.
     """
 
     model: str
@@ -253,6 +257,8 @@ class Signatures:
     notes: tuple[str, ...] = field(default_factory=tuple)
     amplitude_trends: dict[str, Any] = field(default_factory=dict)
     state_change: dict[str, Any] | None = None
+    quadratic_k2: float = math.nan
+    quadratic_k2_se: float = math.nan
 
     @property
     def white(self) -> bool:
@@ -279,6 +285,8 @@ class Signatures:
             "lowfreq_fraction": finite_or_none(self.lowfreq_fraction),
             "acf": [finite_or_none(v) for v in self.acf[:51]],
             "lag1": finite_or_none(self.lag1),
+            "quadratic_k2": {"value": finite_or_none(self.quadratic_k2),
+                             "se": finite_or_none(self.quadratic_k2_se)},
             "ljung_box": {"q": finite_or_none(self.ljung_box_q),
                           "p": finite_or_none(self.ljung_box_p),
                           "lags": self.ljung_box_lags, "series": self.whiteness_series,
@@ -435,6 +443,7 @@ def compute_signatures(
             ddiff = dd.excess - dm.excess
             ddiff_err = math.hypot(dd.excess_se, dm.excess_se)
     trends, change = _amplitude_trends(trial, t, data, pred, f1_ref, notes)
+    k2, k2_se = quadratic_projection(r, pred, rho_c)
     lo, hi = np.quantile(y_rep, [0.05, 0.95], axis=0)
     q25, q75 = np.quantile(y_rep, [0.25, 0.75], axis=0)
     return Signatures(
@@ -478,7 +487,46 @@ def compute_signatures(
         notes=tuple(notes),
         amplitude_trends=trends,
         state_change=change,
+        quadratic_k2=k2,
+        quadratic_k2_se=k2_se,
     )
+
+
+def quadratic_projection(residual: np.ndarray, prediction: np.ndarray,
+                         rho: float = 0.0) -> tuple[float, float]:
+    """Coefficient of a residual on the square of the model's signal, and its se.
+
+    Least squares of ``residual ≈ c + k2 (y - ȳ)²`` with ``y`` the prediction: the
+    residual a quadratic sensor (``y + k2 y²``, :mod:`bayesbeam.physics.nonlinear`)
+    leaves when the model lacks it, lines at twice the signal's frequencies in phase
+    with ``y²`` and a mean shift that decays with the amplitude. The se is the
+    least-squares one, times ``sqrt((1 + ρ) / (1 - ρ))`` for residuals with lag-1
+    correlation ``ρ >= 0`` (the inflation of a mean; conservative at the twice-f
+    frequencies where ``y²`` lives when the residual's power is at low frequency).
+
+    Parameters
+    ----------
+    residual, prediction : ndarray, shape (T,)
+        In the signal's SI unit.
+    rho : float
+        Lag-1 autocorrelation of the residual, in [0, 1).
+
+    Returns
+    -------
+    k2, se : float
+        Per signal unit; NaN when the prediction is constant.
+    """
+    y = prediction - prediction.mean()
+    z = y * y
+    z = z - z.mean()
+    zz = float(z @ z)
+    if not zz > 0 or residual.size < 3:
+        return math.nan, math.nan
+    k2 = float(z @ residual) / zz
+    fit_res = residual - residual.mean() - k2 * z
+    s2 = float(fit_res @ fit_res) / (residual.size - 2)
+    rho = float(np.clip(rho, 0.0, 0.99))
+    return k2, math.sqrt(s2 / zz * (1 + rho) / (1 - rho))
 
 
 def _amplitude_trends(trial: Any, t: np.ndarray, data: np.ndarray, pred: np.ndarray,

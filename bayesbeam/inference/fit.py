@@ -82,8 +82,9 @@ def profile_linear(problem: Problem, X: np.ndarray, *, refine: bool = True) -> n
     are profiled out exactly by one least-squares solve per row on the unit-amplitude
     basis responses.
 
-    A model with amplitude-dependent physics (``drag``, ``friction``,
-    ``amplitude_stiffness``: :data:`bayesbeam.physics.models.NONLINEAR`) is not linear in
+    A model with an amplitude-dependent part (``drag``, ``friction``,
+    ``amplitude_stiffness``, ``sensor_quadratic``:
+    :data:`bayesbeam.physics.models.NONLINEAR`) is not linear in
     its amplitudes: a unit-amplitude basis response there is the motion of a mode a
     metre or more in size, damped by drag as such, and a least-squares fit to those
     bases gives nonsense (measured on a 50 cm aluminium record: residual RMS 1e14 m/s²

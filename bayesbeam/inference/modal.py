@@ -37,9 +37,10 @@ Draws that cannot give K modes are counted, never dropped silently:
   are only mentioned in :attr:`ModalPosterior.notes`.
 
 Models with a nonlinear part (``drag``, ``friction``, ``amplitude_stiffness``,
-:mod:`bayesbeam.physics.nonlinear`) have no modes of their own: the record then holds
-those of their linear part (``source = "linear part"``), i.e. the small-amplitude
-frequencies and the amplitude-independent damping; the notes say what is left out.
+``sensor_quadratic``: :mod:`bayesbeam.physics.nonlinear`) have no modes of their own:
+the record then holds those of their linear part (``source = "linear part"``), i.e. the
+small-amplitude frequencies and the amplitude-independent damping; the notes say what
+is left out.
 
 :func:`data_modes` measures the same quantities from the record alone (damped-sinusoid
 fit, :func:`bayesbeam.trials.modal_id.damped_sinusoids`), for the overlay of

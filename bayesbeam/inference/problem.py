@@ -253,6 +253,8 @@ def default_priors(
     drag, friction            LogUniform: equivalent ζ1 at the data's amplitude in [1e-7, 0.05]
     f1_slope                  Uniform(-s, s), s = 0.1 f1 / A: f1 may move by up to 10 % at
                               the data's mode-1 tip amplitude A (Hz per m)
+    k2                        Uniform(-s, s), s = 0.1 / max |y - median y|: the sensor's
+                              quadratic term up to 10 % of the record's largest value
     w0, p0, A_k, B_k          Uniform(-s, s), s generous (10× the data's scale)
     sigma                     LogUniform(1e-4 σ_y, 2 σ_y), σ_y = sd of the data
     rho                       Uniform(0, 0.995)
@@ -341,6 +343,13 @@ def default_priors(
             amp = max(_mode1_amplitude(trial, order, n_elements), 1e-9)
             s_max = 0.1 * (w1 / (2 * np.pi)) / amp
             out[n] = Uniform(-s_max, s_max)
+        elif n == "k2":
+            # A sensor whose quadratic term reaches 10 % of the record's largest value is
+            # far beyond any transducer in use (an accelerometer's K2 is specified in
+            # 0.1-1 % of full scale, IEEE Std 1293); both signs.
+            peak = float(np.max(np.abs(trial.values - np.median(trial.values))))
+            k_max = 0.1 / max(peak, 1e-300)
+            out[n] = Uniform(-k_max, k_max)
         elif n == "sigma":
             out[n] = LogUniform(1e-4 * sd_y, 2 * sd_y)
         elif n == "rho":

@@ -28,11 +28,14 @@ STRUCTURAL: dict[str, tuple[str, ...]] = {
     "root_spring": ("root_spring",),
     "stiffness_gradient": ("stiffness_gradient",),
 }
-#: Extensions that act on the nonlinear dynamics (physics.md §3): amplitude-dependent
-#: damping (quadratic air drag, dry clamp friction) and an amplitude-dependent first
-#: natural frequency, each a cause of its own.
+#: Amplitude-dependent extensions, whose signal is not linear in the initial amplitudes
+#: (bayesbeam.physics.nonlinear): the nonlinear dynamics of physics.md §3
+#: (amplitude-dependent damping by quadratic air drag or dry clamp friction, an
+#: amplitude-dependent first natural frequency) and a sensor whose reading is
+#: quadratic in what it measures, each a cause of its own.
 NONLINEAR: dict[str, tuple[str, ...]] = {
     "drag": ("drag",), "friction": ("friction",), "amplitude_stiffness": ("f1_slope",),
+    "sensor_quadratic": ("k2",),
 }
 #: Former model parts and what replaced them (named in the error message).
 _RENAMED: dict[str, str] = {
@@ -71,6 +74,8 @@ PARAMETER_UNITS: dict[str, tuple[str, str]] = {
     "friction": ("N", "dry (Coulomb) clamp friction on the first mode"),
     "f1_slope": ("Hz/m", "change of the first natural frequency per m of its tip amplitude "
                          "(negative: softening)"),
+    "k2": (f"1/{SIGNAL}", "second-order sensor nonlinearity: the sensor reads y + k2 y^2 "
+                            "(K2 of the IEEE Std 1293 accelerometer model)"),
     "w0": ("m", "initial tip deflection of a release"),
     "p0": ("N s", "tip impulse from rest"),
     "sigma": (SIGNAL, "noise standard deviation (marginal, for AR(1) noise)"),
@@ -92,8 +97,8 @@ def parameter_units(
         condition, m).
     signal_unit : str, optional
         SI unit of the trial's measured quantity (``"m"``, ``"m/s"`` or ``"m/s^2"``),
-        the unit of ``sigma`` and ``offset``; without it their unit reads
-        :data:`SIGNAL`.
+        the unit of ``sigma`` and ``offset`` (and the inverse unit of ``k2``); without it
+        their units read :data:`SIGNAL`.
     default : tuple of str, optional
         Returned for a name not in the table (instead of the error).
 
@@ -132,8 +137,9 @@ def parameter_units(
         raise KeyError(f"no unit known for parameter {name!r}; add it to PARAMETER_UNITS "
                        "(bayesbeam.physics.models)")
     unit, meaning = PARAMETER_UNITS[name]
-    if unit == SIGNAL and signal_unit is not None:
-        unit = signal_unit
+    if SIGNAL in unit and signal_unit is not None:
+        inverse = unit.startswith("1/") and "/" in signal_unit  # 1/(m/s^2), not 1/m/s^2
+        unit = unit.replace(SIGNAL, f"({signal_unit})" if inverse else signal_unit)
     return unit, meaning
 
 

@@ -1,9 +1,9 @@
-"""Amplitude-dependent damping: quadratic air drag and dry clamp friction (physics.md §3).
+"""Amplitude-dependent models: drag, clamp friction, amplitude stiffness, a quadratic sensor.
 
-Two extensions of :data:`bayesbeam.physics.models.NONLINEAR`, two causes of the diagnosis
-catalogue, each adding one parameter (of the same name) to a linear model; a model may
-have either or both (``viscous+kv+drag``, ``viscous+kv+friction``,
-``viscous+kv+drag+friction``), and a missing one counts as zero:
+The extensions of :data:`bayesbeam.physics.models.NONLINEAR` (physics.md §3), each a cause
+of the diagnosis catalogue adding one parameter to a linear model; a model may have
+several (``viscous+kv+drag``, ``viscous+kv+drag+friction``,
+``viscous+kv+drag+sensor_quadratic``), and a missing one counts as zero:
 
 ``drag`` (c_q, kg/m²)
     Quadratic air drag, a distributed force per unit length ``-c_q |w_t| w_t`` (N/m).
@@ -37,6 +37,20 @@ have either or both (``viscous+kv+drag``, ``viscous+kv+friction``,
     ``s = 2 k_a / (3 π² |s_1| ω_1)`` (harmonic balance: its first harmonic is
     ``(8/3π) k_a a q_1`` for ``q_1 = a cos φ``), which is how the direct integration
     of the tests produces it.
+
+``sensor_quadratic`` (k2, 1/signal unit)
+    A sensor whose reading is quadratic in what it measures: it reads ``y + k2 y²``
+    for the signal ``y`` of the dynamics above (then, in the trial's model, plus any
+    constant offset). This is the second-order term ``K2`` of the accelerometer model
+    of IEEE Std 1293-2018 (indicated = K0 + a + K2 a² + K3 a³ + ..., in g/g² there; SI
+    here, 1/(m/s²) for an acceleration record), and the leading term of any smooth
+    nonlinearity of a transducer. Its signature is a line at twice each frequency of
+    the signal (and at sums and differences of two), in phase with the square of the
+    response and decaying twice as fast, plus a slowly decaying shift of the mean,
+    ``k2`` times the mean square. Even harmonics distinguish it from the dynamics'
+    nonlinearities of a symmetric beam (odd in the response). Applied to the signal
+    as the model sees it (after the sensor band): the squares of components above
+    the band, which a real sensor squares before its anti-alias filter, are left out.
 
 Signatures: the drag's energy loss per cycle grows as the cube of the amplitude, so the
 decay rate grows with amplitude; Coulomb friction's grows only linearly, so the
@@ -90,7 +104,8 @@ with p = 0, 1, 2 for displacement, velocity and acceleration (the exact derivati
 ``ρ_k e^{iθ_k} e^{λ_k τ}`` except the O(ε²) terms in ρ'', θ'' and θ'²; θ_k = 0 but for
 the first mode with ``f1_slope``). With ``drag = friction = f1_slope = 0`` (or the
 parameters absent from the model) the correction is exactly zero and the result is
-bit-for-bit the linear :class:`~bayesbeam.physics.forward.Forward`.
+bit-for-bit the linear :class:`~bayesbeam.physics.forward.Forward`; the sensor's
+``k2 y²`` is added last, to that sum.
 
 Approximations (checked against a direct LSODA integration, rtol 1e-10, of the full
 nonlinear FE system in tests/test_nonlinear.py):
@@ -280,7 +295,7 @@ def _sampling_step(tau: np.ndarray) -> float:
 
 
 class NonlinearForward:
-    """Batched forward model with amplitude-dependent damping (drag and clamp friction).
+    """Batched forward model with the amplitude-dependent extensions (module docstring).
 
     Same interface as :class:`bayesbeam.physics.forward.Forward`; the physics and the slow-flow
     approximation are described in the module docstring.
@@ -290,8 +305,9 @@ class NonlinearForward:
     beam : Beam
         Beam description, including sensor position and measured quantity.
     model : str or Model
-        A model with the ``drag`` or the ``friction`` extension or both, e.g.
-        ``'viscous+kv+drag'`` or ``'viscous+kv+drag+friction'``.
+        A model with at least one of ``drag``, ``friction``, ``amplitude_stiffness``
+        and ``sensor_quadratic``, e.g. ``'viscous+kv+drag'`` or
+        ``'viscous+kv+drag+friction'``.
     times : array_like, shape (T,)
         Sample times in s, strictly increasing.
     t0 : float, optional
@@ -349,10 +365,9 @@ class NonlinearForward:
         self.model = parse_model(model)
         if not self.model.nonlinear:
             raise NonlinearError(
-                f"model {self.model.name!r} has no nonlinear part (drag, friction, "
-                "amplitude_stiffness); use "
-                "bayesbeam.physics.forward.Forward for linear models or add '+drag', '+friction'"
-                " or '+amplitude_stiffness'"
+                f"model {self.model.name!r} has no amplitude-dependent part "
+                f"({', '.join(NONLINEAR)}); use bayesbeam.physics.forward.Forward for "
+                "linear models or add one, e.g. '+drag'"
             )
         linear = parse_model("+".join(p for p in self.model.parts if p not in NONLINEAR))
         self.linear = Forward(beam, linear, times, n_elements=n_elements, initial=initial,
@@ -391,6 +406,7 @@ class NonlinearForward:
                         else None)
         self._i_slope = (self.param_names.index("f1_slope") if "f1_slope" in self.param_names
                          else None)
+        self._i_k2 = self.param_names.index("k2") if "k2" in self.param_names else None
         self._tau = self.times - self.t0  # (T,) s since the initial condition
         self._step = _sampling_step(self._tau)
         xq, wq = _gauss_points(np.asarray(self.fe.nodes), _DRAG_GAUSS)
@@ -414,7 +430,7 @@ class NonlinearForward:
         """Return the mask of admissible parameter sets.
 
         ``drag`` (kg/m²) and ``friction`` (N), where the model has them, must be finite
-        and ≥ 0, ``f1_slope`` (Hz/m) finite; the other parameters as in
+        and ≥ 0, ``f1_slope`` (Hz/m) and ``k2`` finite; the other parameters as in
         :meth:`bayesbeam.physics.forward.Forward.check`.
 
         Parameters
@@ -430,8 +446,9 @@ class NonlinearForward:
         for j in (self._i_drag, self._i_fric):
             if j is not None:
                 ok &= np.isfinite(theta[:, j]) & (theta[:, j] >= 0)
-        if self._i_slope is not None:
-            ok &= np.isfinite(theta[:, self._i_slope])
+        for j in (self._i_slope, self._i_k2):
+            if j is not None:
+                ok &= np.isfinite(theta[:, j])
         return ok
 
     def first_mode(self, theta: np.ndarray | dict) -> tuple[np.ndarray, np.ndarray]:
@@ -786,7 +803,7 @@ class NonlinearForward:
         ----------
         theta : ndarray, shape (B, P), or dict of name → array
             Parameter sets, columns :attr:`param_names` (SI units: ``drag`` in kg/m²,
-            ``friction`` in N, where the model has them).
+            ``friction`` in N, ``k2`` in 1/(signal unit), where the model has them).
 
         Returns
         -------
@@ -811,6 +828,13 @@ class NonlinearForward:
             y[idx[ok]] += dy[ok]
             y[idx[~ok]] = 0.0
             valid[idx[~ok]] = False
+        if self._i_k2 is not None:  # the sensor's reading, y + k2 y² (module docstring)
+            k2 = np.where(valid, theta[:, self._i_k2], 0.0)
+            with np.errstate(over="ignore", invalid="ignore"):
+                y += k2[:, None] * y * y
+            bad = valid & ~np.all(np.isfinite(y), axis=1)
+            y[bad] = 0.0
+            valid &= ~bad
         return Response(y, valid)
 
     def equivalent_damping(self, theta: np.ndarray | dict, amplitude: float,

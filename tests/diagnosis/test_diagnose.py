@@ -43,6 +43,8 @@ amplitude_stiffness     f1 1 % lower at the initial mode-1 tip amplitude (soften
                         linear in amplitude); the record from a direct integration of
                         the first mode's nonlinear oscillator (the beam is classically
                         damped, so mode 1 decouples), not from the slow flow
+sensor_quadratic        a sensor reading y + k2 y², the quadratic term 2 % of the
+                        signal's peak (the linear signal from 32 elements, then squared)
 ar1_noise               AR(1) noise with rho = 0.8
 sensor_offset           offset of 5 % of the amplitude (sqrt(2) x RMS)
 ======================  =====================================================
@@ -125,8 +127,12 @@ def _excitation(quantity):
 
 
 def make_trial(model, params, quantity, *, seed=0, duration=1.0, fs=512.0, rho=None,
-               offset=0.0):
-    """Noisy synthetic trial from the package's simulator (see the module docstring)."""
+               offset=0.0, quadratic=0.0):
+    """Noisy synthetic trial from the package's simulator (see the module docstring).
+
+    ``quadratic``: the signal read through a sensor ``y + k2 y²`` whose quadratic term
+    is that fraction of the signal's peak.
+    """
     initial, ic = _excitation(quantity)
     t = np.arange(int(round(duration * fs))) / fs
     beam = BEAM.replace(quantity=quantity)
@@ -141,6 +147,7 @@ def make_trial(model, params, quantity, *, seed=0, duration=1.0, fs=512.0, rho=N
         y = res.y[0]
     else:
         y = simulate_signal(beam, model, {**params, **ic}, t, n_elements=N_DATA, initial=initial)
+    y = y + quadratic / np.abs(y).max() * y**2
     rms = np.sqrt(np.mean(y**2))
     rng = np.random.default_rng(seed)
     z = rng.standard_normal(t.size)
@@ -240,6 +247,8 @@ def case(cause, quantity):
                 "viscous+kv")
     if cause == "amplitude_stiffness":
         return (*softening_trial(quantity), "viscous+kv")
+    if cause == "sensor_quadratic":
+        return (*make_trial("viscous+kv", BASE, quantity, quadratic=0.02), "viscous+kv")
     if cause == "ar1_noise":
         return (*make_trial("viscous+kv", BASE, quantity, rho=0.8), "viscous+kv")
     if cause == "sensor_offset":

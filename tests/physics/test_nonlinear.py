@@ -152,7 +152,8 @@ def test_param_names_follow_the_problem_order():
     f = NonlinearForward(strip(), "friction+viscous", t, n_elements=4)
     assert f.param_names == ("E", "gamma", "friction", "w0")
     assert f.linear.model.name == "viscous"
-    with pytest.raises(NonlinearError, match="amplitude.*'\\+drag'.*'\\+friction'"):
+    with pytest.raises(NonlinearError,
+                       match="amplitude-dependent part.*sensor_quadratic.*'\\+drag'"):
         NonlinearForward(strip(), "viscous", t)
     with pytest.raises(ValueError, match="shape"):
         f.simulate(np.ones((2, 3)))
@@ -208,6 +209,27 @@ def test_drag_or_friction_alone_equals_both_with_the_other_zero(quantity):
         assert (zd[0], zf[0]) == (z_both[0][0], z_both[1][0])
         assert (zf if name == "drag" else zd)[0] == 0.0
         assert alone.check({**p, name: -1.0}).tolist() == [False]
+
+
+@pytest.mark.parametrize("quantity", ["displacement", "acceleration"])
+def test_quadratic_sensor_reads_the_square_of_the_signal(quantity):
+    # The sensor reads y + k2 y², y the signal of the rest of the model (with drag: the
+    # slow-flow signal), bit for bit the rest at k2 = 0; a non-finite k2 is invalid.
+    t = np.arange(384) / 256
+    beam = strip(quantity)
+    p = {**P_LIN, "w0": 0.02}
+    for base, extra in (("viscous+kv", {}), ("viscous+kv+drag", {"drag": DRAG})):
+        rest = (NonlinearForward(beam, base, t, n_elements=6) if extra
+                else Forward(beam, base, t, n_elements=6))
+        y = rest.simulate({**p, **extra}).y[0]
+        quad = NonlinearForward(beam, base + "+sensor_quadratic", t, n_elements=6)
+        k2 = 0.05 / np.abs(y).max()  # the quadratic term 5 % of the peak
+        np.testing.assert_array_equal(quad.simulate({**p, **extra, "k2": 0.0}).y[0], y)
+        got = quad.simulate({**p, **extra, "k2": k2}).y[0]
+        # k2 y y against k2 y²: two roundings of a term 5 % of the peak.
+        np.testing.assert_allclose(got, y + k2 * y**2, rtol=0, atol=1e-15 * np.abs(y).max())
+        assert quad.check({**p, **extra, "k2": np.inf}).tolist() == [False]
+    assert quad.param_names == ("E", "gamma", "c_d", "drag", "k2", "w0")
 
 
 # ----------------------------------------------------------------------------- linear limit
