@@ -212,9 +212,10 @@ class Signatures:
         The record's change-of-state test (data only, whatever the model:
         :meth:`bayesbeam.trials.state_change.StateChange.to_json_dict`).
     quadratic_k2, quadratic_k2_se : float
-        Least-squares coefficient of the residual on the square of the prediction
-        (with a constant; :func:`quadratic_projection`) and its se, per signal unit:
-        what a quadratic sensor (``sensor_quadratic``, reading ``y + k2 y²``) leaves.
+        Generalised least-squares coefficient of the residual on the square of the
+        prediction (with a constant, AR(1)-prewhitened: :func:`quadratic_projection`) and
+        its se, per signal unit: what a quadratic sensor (``sensor_quadratic``, reading
+        ``y + k2 y²``) leaves.
     """
 
     model: str
@@ -443,7 +444,9 @@ def compute_signatures(
             ddiff = dd.excess - dm.excess
             ddiff_err = math.hypot(dd.excess_se, dm.excess_se)
     trends, change = _amplitude_trends(trial, t, data, pred, f1_ref, notes)
-    k2, k2_se = quadratic_projection(r, pred, rho_c)
+    # The model's own AR(1) correlation where it has one, else the residual's lag 1.
+    rho_q = float(x_mean[list(problem.names).index("rho")]) if "rho" in problem.names else rho_c
+    k2, k2_se = quadratic_projection(r, pred, rho_q)
     lo, hi = np.quantile(y_rep, [0.05, 0.95], axis=0)
     q25, q75 = np.quantile(y_rep, [0.25, 0.75], axis=0)
     return Signatures(
@@ -496,37 +499,40 @@ def quadratic_projection(residual: np.ndarray, prediction: np.ndarray,
                          rho: float = 0.0) -> tuple[float, float]:
     """Coefficient of a residual on the square of the model's signal, and its se.
 
-    Least squares of ``residual ≈ c + k2 (y - ȳ)²`` with ``y`` the prediction: the
-    residual a quadratic sensor (``y + k2 y²``, :mod:`bayesbeam.physics.nonlinear`)
-    leaves when the model lacks it, lines at twice the signal's frequencies in phase
-    with ``y²`` and a mean shift that decays with the amplitude. The se is the
-    least-squares one, times ``sqrt((1 + ρ) / (1 - ρ))`` for residuals with lag-1
-    correlation ``ρ >= 0`` (the inflation of a mean; conservative at the twice-f
-    frequencies where ``y²`` lives when the residual's power is at low frequency).
+    Generalised least squares of ``residual ≈ c + k2 (y - ȳ)²`` with ``y`` the
+    prediction, for residuals that are AR(1) with lag-1 correlation ``rho`` (0: ordinary
+    least squares): the residual and both regressors are prewhitened, ``x_t - ρ x_{t-1}``
+    (Cochrane–Orcutt), so the se is the GLS one whatever the residual's colour. The
+    regressor is what a quadratic sensor (``y + k2 y²``,
+    :mod:`bayesbeam.physics.nonlinear`) leaves when the model lacks it: lines at twice
+    the signal's frequencies in phase with ``y²`` and a mean shift that decays with the
+    amplitude.
 
     Parameters
     ----------
     residual, prediction : ndarray, shape (T,)
-        In the signal's SI unit.
+        In the signal's SI unit, on uniform (or nearly uniform) stamps.
     rho : float
-        Lag-1 autocorrelation of the residual, in [0, 1).
+        Lag-1 correlation of the residual, clipped to [0, 0.99].
 
     Returns
     -------
     k2, se : float
-        Per signal unit; NaN when the prediction is constant.
+        Per signal unit; NaN when the prediction is constant or the record too short.
     """
     y = prediction - prediction.mean()
     z = y * y
-    z = z - z.mean()
-    zz = float(z @ z)
-    if not zz > 0 or residual.size < 3:
-        return math.nan, math.nan
-    k2 = float(z @ residual) / zz
-    fit_res = residual - residual.mean() - k2 * z
-    s2 = float(fit_res @ fit_res) / (residual.size - 2)
     rho = float(np.clip(rho, 0.0, 0.99))
-    return k2, math.sqrt(s2 / zz * (1 + rho) / (1 - rho))
+    n = residual.size - 1
+    if n < 3 or not np.ptp(z) > 0:
+        return math.nan, math.nan
+    X = np.column_stack([np.full(n, 1.0 - rho), z[1:] - rho * z[:-1]])
+    rw = residual[1:] - rho * residual[:-1]
+    coef, *_ = np.linalg.lstsq(X, rw, rcond=None)
+    fit_res = rw - X @ coef
+    s2 = float(fit_res @ fit_res) / (n - 2)
+    cov = s2 * np.linalg.inv(X.T @ X)
+    return float(coef[1]), math.sqrt(max(float(cov[1, 1]), 0.0))
 
 
 def _amplitude_trends(trial: Any, t: np.ndarray, data: np.ndarray, pred: np.ndarray,
