@@ -27,6 +27,11 @@ the finished steps; ``--resume`` continues them); then write into ``OUTDIR``:
 ``residual_spectrum.png``   residual spectrum with the model's modal frequencies
 ``zeta_vs_f.png``           ζ_k against f_k (log-log, 90 % intervals, data overlay,
                             slopes of viscous and Kelvin–Voigt damping)
+``f1_vs_amplitude.png``     where the record has three windows or more: f1, ζ1 (and
+                            mode 2) against the mode-1 amplitude, the residual's
+                            spectrogram and mode 1 against time, the model's curves
+                            over the data's (:mod:`bayesbeam.report.amplitude_plots`);
+                            the closing line names every figure written
 ``run.json``                the options of the run, checked on ``--resume``
 ``chain.h5``                emcee checkpoint
 ==========================  ===========================================================
@@ -299,9 +304,13 @@ def run(args: argparse.Namespace) -> int:
     resid = np.asarray(trial.values) - np.median(y_model, axis=0)
     plot_residual_spectrum(trial, resid, outdir / "residual_spectrum.png",
                            mode_freqs_hz=_mode_freqs(problem, result))
-    write_model_overlays(trial, {model.name: np.median(y_model, axis=0)}, outdir, say=opts.say)
+    figures = ["corner.png", "trace.png", "fit.png", "residual_spectrum.png"]
+    figures += [p.name for p in write_model_overlays(
+        trial, {model.name: np.median(y_model, axis=0)}, outdir, say=opts.say)]
     if plot_zeta_vs_f(modal, outdir / "zeta_vs_f.png", title=f"{trial.name}: {model.name}") is None:
         opts.say(f"{model.name}: no zeta_vs_f.png: {modal.reason}")
+    else:
+        figures.append("zeta_vs_f.png")
     payload["total_seconds"] = time.perf_counter() - t_start
     payload["outdir"] = str(outdir)
 
@@ -309,8 +318,7 @@ def run(args: argparse.Namespace) -> int:
         opts.print_json(payload)
     else:
         print(result)
-        print(f"results in {outdir}/ (posterior.nc, summary.json, corner.png, trace.png, "
-              f"fit.png, residual_spectrum.png, zeta_vs_f.png); "
+        print(f"results in {outdir}/ (posterior.nc, summary.json, {', '.join(figures)}); "
               f"{payload['total_seconds']:.1f} s in total")
     if not result.chain.converged:
         why = reasons[0] if reasons else "convergence criteria not met"

@@ -217,8 +217,8 @@ def run_joint(args: argparse.Namespace, error: type[Exception]) -> int:
         opts.print_json(payload)
     else:
         print(jf)
-        print(f"results in {outdir}/ (posterior.nc, summary.json, corner.png, trace.png, "
-              f"{', '.join(figures)}); {payload['total_seconds']:.1f} s in total")
+        print(f"results in {outdir}/ (posterior.nc, summary.json, {', '.join(figures)}); "
+              f"{payload['total_seconds']:.1f} s in total")
     if not jf.result.chain.converged:
         why = reasons[0] if reasons else "convergence criteria not met"
         print(f"WARNING: joint {model.name}: NOT CONVERGED: {why}", file=sys.stderr)

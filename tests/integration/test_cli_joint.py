@@ -162,8 +162,14 @@ def test_unconverged_pooled_fit_says_what_mixes_slowly(trial_files, tmp_path, ca
                           "--pooled", "gamma", "-o", str(tmp_path / "p"), "--elements", "4",
                           "--max-steps", "100", "--target-ess", "1000",
                           "--fixed-mesh"]) == 0
-    err = capsys.readouterr().err
+    cap = capsys.readouterr()
+    err = cap.err
     assert "NOT CONVERGED" in err
+    # The closing line names every file written, once.
+    line = next(ln for ln in cap.out.splitlines() if ln.startswith("results in "))
+    names = line.split("(", 1)[1].split(")", 1)[0].split(", ")
+    assert len(names) == len(set(names)) and "fit_rel1.png" in names
+    assert all((tmp_path / "p" / n).is_file() for n in names), names
     payload = json.loads((tmp_path / "p" / "summary.json").read_text())
     q = payload["posterior"]["gamma_spread"]
     assert f"gamma_spread {q['q50']:.3g} [{q['q05']:.3g}, {q['q95']:.3g}]" in err
