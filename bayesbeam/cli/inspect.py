@@ -14,6 +14,10 @@ resolved, the offset, the residual's spectral lines) and writes into ``OUTDIR``:
                                 the trial's name, the wall time and ``state_change``
                                 (a change of state within the record:
                                 :func:`bayesbeam.trials.state_change.state_change`)
+                                and ``second_harmonic`` (the line at 2 f1: in phase,
+                                quadrature, and whether the window means follow it:
+                                :func:`bayesbeam.trials.harmonics.second_harmonic`;
+                                null when not measurable)
 ``f1_vs_amplitude.png``         (a) f1 against mode-1 displacement amplitude
 ``zeta1_vs_amplitude.png``      (b) ζ1 against amplitude
 ``mode2_vs_amplitude.png``      (c) f2/f1 and ζ2 (only when mode 2 is resolved)
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -153,6 +158,12 @@ def summary_text(record: dict[str, Any]) -> str:
     sc = record.get("state_change")
     if sc is not None:
         lines.append(f"  {sc['reason']}")
+    from bayesbeam.trials.harmonics import harmonic_text
+
+    sh = record.get("second_harmonic")
+    lines.append("  " + (harmonic_text(sh) if sh is not None else
+                         "second harmonic of mode 1: not measurable (fewer than three "
+                         "windows above 5 % of the largest amplitude)"))
     return "\n".join(lines)
 
 
@@ -169,9 +180,12 @@ def run(args: argparse.Namespace) -> int:
     int
         Exit status 0.
     """
+    import numpy as np
+
     from bayesbeam.cli.outdir import stamp
     from bayesbeam.report.amplitude_plots import write_amplitude_figures
     from bayesbeam.trials.amplitude import amplitude_curves, tip_factor
+    from bayesbeam.trials.harmonics import second_harmonic
     from bayesbeam.trials.io import read_trial
     from bayesbeam.trials.preprocess import plan
     from bayesbeam.trials.state_change import state_change
@@ -192,12 +206,18 @@ def run(args: argparse.Namespace) -> int:
                                   periods=args.periods, quantity=trial.quantity,
                                   tip_factor=tip_factor(trial.beam), progress=_Progress())
     change = state_change(curves)
+    f1s = [f for f in curves.to_json_dict()["windows"]["modes"][0]["frequency_hz"]
+           if f is not None]
+    with one_blas_thread():
+        harmonic = second_harmonic(trial.times, trial.values,
+                                   float(np.median(f1s)) if f1s else math.nan)
     span = {k: v for k, v in pre.to_json_dict().items()
             if k in ("start", "end", "start_how", "end_how", "release", "given", "loader")}
     record = {"trial": trial.name, "n_samples": int(trial.times.size),
               "preprocessing": {**span, "note": "raw stamps in the span (no resampling)"},
               **curves.to_json_dict(),
               "state_change": change.to_json_dict(),
+              "second_harmonic": None if harmonic is None else harmonic.to_json_dict(),
               "wall_time_s": round(time.perf_counter() - tic, 3),
               **stamp(args, trial)}
     outdir = Path(args.outdir)
