@@ -116,13 +116,16 @@ def harmonic_text(record: dict[str, Any]) -> str:
 
     f1 = record.get("f1_hz")
     where = "n/a" if f1 is None else f"{2 * f1:.2f} Hz"
-    return (f"second harmonic of mode 1 ({where}, {record.get('n_windows', 0)} windows): in "
+    head = (f"second harmonic of mode 1 ({where}, {record.get('n_windows', 0)} windows): in "
             f"phase {f('in_phase_per_amplitude2', '.3g')} ± "
             f"{f('in_phase_per_amplitude2_se', '.2g')}, quadrature "
             f"{f('quadrature_per_amplitude2', '.3g')} ± "
-            f"{f('quadrature_per_amplitude2_se', '.2g')} per signal unit, times A²; window "
-            f"means against it: slope {f('mean_vs_in_phase_slope', '.2f')} ± "
-            f"{f('mean_vs_in_phase_slope_se', '.2f')} (a quadratic sensor gives 1, a "
+            f"{f('quadrature_per_amplitude2_se', '.2g')} per signal unit, times A²")
+    c, c_se = record.get("in_phase_per_amplitude2"), record.get("in_phase_per_amplitude2_se")
+    if c is None or c_se is None or not abs(c) > 2 * c_se:
+        return head + ": no line beyond 2 se, so the window means test nothing"
+    return (head + f"; window means against it: slope {f('mean_vs_in_phase_slope', '.2f')} "
+            f"± {f('mean_vs_in_phase_slope_se', '.2f')} (a quadratic sensor gives 1, a "
             "quadratic force or the sensor's motion 0)")
 
 
