@@ -32,16 +32,10 @@ import time
 from pathlib import Path
 
 from bayesbeam.trials.io import write_trial
-from bayesbeam.trials.realdata import ENES, list_real_datasets
+from bayesbeam.trials.realdata import list_real_datasets
 
 HERE = Path(__file__).resolve().parent
 FIGURES = HERE / "figures"
-
-
-def _label(rec) -> str:
-    if rec.dataset == ENES:
-        return f"alu{rec.kwargs['length_cm']}-{rec.kwargs['index']}"
-    return "steel"
 
 
 def _run(cmd: list[str]) -> tuple[float, dict | None, str]:
@@ -73,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_records_"))
     rows = []
     for rec in records:
-        label = _label(rec)
+        label = rec.label
         if want is not None and label not in want:
             continue
         trial = rec.load(raw=True)

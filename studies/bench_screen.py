@@ -28,9 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-# The study's own record labels (run as a script, studies/ is on the path).
-from real_data import label
-
 from bayesbeam._util import one_blas_thread
 from bayesbeam.cli import options as opts
 from bayesbeam.cli.diagnose import register
@@ -93,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--elements", type=int, default=32, help="mesh (default 32)")
     ap.add_argument("--workdir", type=Path, default=None)
     args = ap.parse_args(argv)
-    recs = [r for r in list_real_datasets() if label(r) == args.record]
+    recs = [r for r in list_real_datasets() if r.label == args.record]
     if not recs:
         print(f"record {args.record!r} not found under ../shared/data/real", file=sys.stderr)
         return 1

@@ -36,18 +36,11 @@ import argparse
 
 import numpy as np
 
+from bayesbeam.inference.problem import BETA1
 from bayesbeam.trials.harmonics import second_harmonic
 from bayesbeam.trials.modal_id import periodogram
 from bayesbeam.trials.preprocess import plan
-from bayesbeam.trials.realdata import ENES, list_real_datasets
-
-BETA1 = 1.875104069
-
-
-def _label(rec) -> str:
-    if rec.dataset == ENES:
-        return f"alu{rec.kwargs['length_cm']}-{rec.kwargs['index']}"
-    return "steel"
+from bayesbeam.trials.realdata import list_real_datasets
 
 
 def _mode1_ratio(length: float, sensor: float) -> float:
@@ -70,7 +63,7 @@ def main(argv: list[str] | None = None) -> None:
           "(a sensor: 1) | centripetal h needed |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for rec in list_real_datasets():
-        label = _label(rec)
+        label = rec.label
         if want is not None and label not in want:
             continue
         trial = rec.load(raw=True)

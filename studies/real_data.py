@@ -70,13 +70,6 @@ SIZES = {
 }
 
 
-def label(rec: Any) -> str:
-    """Short label of a record: ``alu50-0`` (length in cm, repeat), ``steel``."""
-    if rec.dataset == ENES:
-        return f"alu{rec.kwargs['length_cm']}-{rec.kwargs['index']}"
-    return "steel"
-
-
 def sizes(record: dict[str, Any], length: float) -> dict[str, list[float]]:
     """Final-model sizes in the units of :data:`SIZES`: name -> [mean, sd].
 
@@ -103,7 +96,7 @@ def row(rec: Any, record: dict[str, Any], seconds: float | None) -> dict[str, An
     """One record's row of the study (plain JSON)."""
     length = _length(rec)
     return {
-        "record": label(rec), "length_m": length,
+        "record": rec.label, "length_m": length,
         "samples": record.get("preprocessing", {}).get("n_samples"),
         "baseline": record.get("baseline"), "final_model": record.get("final_model"),
         "named": [{k: r.get(k) for k in ("cause", "equivalent", "delta_log_evidence",
@@ -196,7 +189,7 @@ def _f(x: float | None, digits: int = 1) -> str:
 def run_one(rec: Any, outdir: Path, *, small: bool, seed: int,
             log: Any) -> tuple[dict[str, Any], float | None]:
     """Diagnose one record (or read its earlier output); return its record and seconds."""
-    name = label(rec)
+    name = rec.label
     out = outdir / name
     done = out / "diagnosis.json"
     if done.is_file():
@@ -263,13 +256,13 @@ def main(small: bool = False, outdir: str | Path | None = None, seed: int = 0,
     recs = list_real_datasets()
     if not recs:
         raise SystemExit("no public records found under ../shared/data/real")
-    want = records or ([SMALL_RECORD] if small else [label(r) for r in recs])
-    unknown = sorted(set(want) - {label(r) for r in recs})
+    want = records or ([SMALL_RECORD] if small else [r.label for r in recs])
+    unknown = sorted(set(want) - {r.label for r in recs})
     if unknown:
-        raise SystemExit(f"unknown record(s) {unknown}; known: {[label(r) for r in recs]}")
+        raise SystemExit(f"unknown record(s) {unknown}; known: {[r.label for r in recs]}")
     rows = []
     for rec in recs:
-        if label(rec) in want:
+        if rec.label in want:
             record, seconds = run_one(rec, outdir, small=small, seed=seed, log=log)
             rows.append(row(rec, record, seconds))
     pairs = repeats(rows)

@@ -206,11 +206,11 @@ def run(args: argparse.Namespace) -> int:
                                   periods=args.periods, quantity=trial.quantity,
                                   tip_factor=tip_factor(trial.beam), progress=_Progress())
     change = state_change(curves)
-    f1s = [f for f in curves.to_json_dict()["windows"]["modes"][0]["frequency_hz"]
-           if f is not None]
+    f1s = curves.frequency[:, 0]
+    f1s = f1s[np.isfinite(f1s)]
     with one_blas_thread():
         harmonic = second_harmonic(trial.times, trial.values,
-                                   float(np.median(f1s)) if f1s else math.nan)
+                                   float(np.median(f1s)) if f1s.size else math.nan)
     span = {k: v for k, v in pre.to_json_dict().items()
             if k in ("start", "end", "start_how", "end_how", "release", "given", "loader")}
     record = {"trial": trial.name, "n_samples": int(trial.times.size),

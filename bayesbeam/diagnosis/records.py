@@ -405,7 +405,7 @@ def describe_signatures(sig: Any) -> list[str]:
         out.append(f"In the record itself (no model): {change['reason']}.")
     out.append(f"Residual mean {sig.residual_mean:.3g} (z = {sig.residual_mean_z:.1f}); "
                f"{100 * sig.lowfreq_fraction:.1f} % of the residual power below f1/2.")
-    k2, se = getattr(sig, "quadratic_k2", math.nan), getattr(sig, "quadratic_k2_se", math.nan)
+    k2, se = sig.quadratic_k2, sig.quadratic_k2_se
     if math.isfinite(k2) and math.isfinite(se):
         out.append(f"Residual against the square of the model's signal: k2 = {k2:.3g} ± "
                    f"{se:.2g} per signal unit (a quadratic sensor, y + k2 y²; lines at "

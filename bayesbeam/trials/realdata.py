@@ -144,6 +144,13 @@ class RealRecord:
     path: Path
     kwargs: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def label(self) -> str:
+        """Short label: ``alu50-0`` (aluminium, free length in cm, repeat), ``steel``."""
+        if self.dataset == ENES:
+            return f"alu{self.kwargs['length_cm']}-{self.kwargs['index']}"
+        return "steel"
+
     def load(self, root: str | Path = DEFAULT_ROOT, **options: Any) -> Trial:
         """Load the record with its loader (``options`` e.g. ``duration``).
 

@@ -47,6 +47,7 @@ def test_listing(real_data_root):
     assert [r.dataset for r in recs].count("hrshm-steel-impulse") == 1
     assert all(r.path.is_file() for r in recs)
     assert recs[0].load(real_data_root, duration=1.0).name == "enes-alu-30cm-0"
+    assert recs[0].label == "alu30-0" and recs[-1].label == "steel"
 
 
 def test_root_resolves_from_repo_root_and_elsewhere(
